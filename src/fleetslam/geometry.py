@@ -1,0 +1,132 @@
+"""SE(3)/SO(3) helpers shared by every part of fleetslam (one place, not five).
+
+Conventions:
+- Poses are 4×4 homogeneous matrices ``T_a_b`` (float64) mapping points in frame b to frame a.
+- Quaternions are ``(x, y, z, w)``, Hamilton, unit norm, as in ROS messages and TUM trajectory files.
+- Point arrays are ``(N, 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+Matrix4 = NDArray[np.float64]
+Vector = NDArray[np.float64]
+
+
+def quat_to_matrix(quat_xyzw: ArrayLike) -> NDArray[np.float64]:
+    """3×3 rotation matrix of a quaternion ``(x, y, z, w)`` (normalised first)."""
+    return np.asarray(Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix())
+
+
+def matrix_to_quat(rotation: ArrayLike) -> Vector:
+    """Quaternion ``(x, y, z, w)`` with ``w >= 0`` of a 3×3 rotation matrix."""
+    q = Rotation.from_matrix(np.asarray(rotation, dtype=np.float64)).as_quat()
+    return np.asarray(-q if q[3] < 0 else q, dtype=np.float64)
+
+
+def make_pose(rotation: ArrayLike | None = None, translation: ArrayLike | None = None) -> Matrix4:
+    """4×4 pose from a 3×3 rotation (identity if None) and a translation (zero if None)."""
+    pose = np.eye(4)
+    if rotation is not None:
+        pose[:3, :3] = np.asarray(rotation, dtype=np.float64)
+    if translation is not None:
+        pose[:3, 3] = np.asarray(translation, dtype=np.float64)
+    return pose
+
+
+def pose_from_quat(translation: ArrayLike, quat_xyzw: ArrayLike) -> Matrix4:
+    """4×4 pose from a translation and a quaternion ``(x, y, z, w)``."""
+    return make_pose(quat_to_matrix(quat_xyzw), translation)
+
+
+def pose_to_quat(pose: ArrayLike) -> tuple[Vector, Vector]:
+    """Split a 4×4 pose into ``(translation (3,), quaternion (x, y, z, w))``."""
+    pose = np.asarray(pose, dtype=np.float64)
+    return pose[:3, 3].copy(), matrix_to_quat(pose[:3, :3])
+
+
+def pose_from_xyz_rpy(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> Matrix4:
+    """4×4 pose from a position and fixed-axis roll/pitch/yaw (radians), R = Rz(yaw)·Ry(pitch)·Rx(roll)."""
+    rotation = Rotation.from_euler("xyz", [roll, pitch, yaw]).as_matrix()
+    return make_pose(rotation, [x, y, z])
+
+
+def pose_from_planar(x: float, y: float, yaw: float) -> Matrix4:
+    """4×4 pose of a planar robot at ``(x, y)`` heading ``yaw``."""
+    return pose_from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw)
+
+
+def yaw_of(pose: ArrayLike) -> float:
+    """Heading (rotation about z) of a pose or rotation matrix."""
+    m = np.asarray(pose, dtype=np.float64)
+    return float(np.arctan2(m[1, 0], m[0, 0]))
+
+
+def invert(pose: ArrayLike) -> Matrix4:
+    """Inverse of a rigid 4×4 pose (uses the transpose, not a general inverse)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    inv = np.eye(4)
+    rt = pose[:3, :3].T
+    inv[:3, :3] = rt
+    inv[:3, 3] = -rt @ pose[:3, 3]
+    return inv
+
+
+def relative(pose_a: ArrayLike, pose_b: ArrayLike) -> Matrix4:
+    """Pose of b in a's frame: ``inv(T_w_a) · T_w_b``."""
+    return invert(pose_a) @ np.asarray(pose_b, dtype=np.float64)
+
+
+def transform_points(pose: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
+    """Apply a 4×4 pose to ``(N, 3)`` points."""
+    pose = np.asarray(pose, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return pts @ pose[:3, :3].T + pose[:3, 3]
+
+
+def skew(v: ArrayLike) -> NDArray[np.float64]:
+    """Skew-symmetric matrix ``[v]×``."""
+    x, y, z = np.asarray(v, dtype=np.float64)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def so3_exp(rotvec: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrix of a rotation vector (axis·angle)."""
+    return np.asarray(Rotation.from_rotvec(np.asarray(rotvec, dtype=np.float64)).as_matrix())
+
+
+def so3_log(rotation: ArrayLike) -> Vector:
+    """Rotation vector (axis·angle) of a rotation matrix."""
+    return np.asarray(Rotation.from_matrix(np.asarray(rotation, dtype=np.float64)).as_rotvec())
+
+
+def rotation_angle(pose_or_rotation: ArrayLike) -> float:
+    """Angle (radians, in [0, π]) of the rotation part of a pose or rotation matrix."""
+    m = np.asarray(pose_or_rotation, dtype=np.float64)[:3, :3]
+    return float(np.linalg.norm(so3_log(m)))
+
+
+def translation_distance(pose_a: ArrayLike, pose_b: ArrayLike) -> float:
+    """Euclidean distance between the positions of two poses."""
+    a = np.asarray(pose_a, dtype=np.float64)
+    b = np.asarray(pose_b, dtype=np.float64)
+    return float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+
+
+def random_pose(rng: np.random.Generator, translation_scale: float = 1.0) -> Matrix4:
+    """A random rigid pose (uniform rotation, Gaussian translation); for tests and synthetic data."""
+    rotation = Rotation.random(random_state=rng).as_matrix()
+    return make_pose(rotation, rng.normal(scale=translation_scale, size=3))
+
+
+def normalize_angle(angle: float) -> float:
+    """Wrap an angle to ``(-π, π]``."""
+    wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
+    return float(np.pi if wrapped == -np.pi else wrapped)
+
+
+# Optical frame (x right, y down, z forward) relative to a body frame (x forward, y left, z up).
+T_BODY_OPTICAL: Matrix4 = make_pose(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))

@@ -1,0 +1,85 @@
+"""Trajectories as stamped poses, and their TUM file format (``timestamp tx ty tz qx qy qz qw``)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.errors import DatasetError
+from fleetslam.geometry import pose_from_quat, pose_to_quat
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Stamped poses: ``stamps (N,)`` seconds and ``poses (N, 4, 4)`` as ``T_world_frame``."""
+
+    stamps: NDArray[np.float64]
+    poses: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        if self.stamps.shape[0] != self.poses.shape[0] or self.poses.shape[1:] != (4, 4):
+            raise ValueError(
+                "trajectory needs stamps (N,) and poses (N,4,4), "
+                f"got {self.stamps.shape} and {self.poses.shape}"
+            )
+
+    def __len__(self) -> int:
+        return int(self.stamps.shape[0])
+
+    @property
+    def positions(self) -> NDArray[np.float64]:
+        """``(N, 3)`` positions."""
+        return self.poses[:, :3, 3]
+
+    @classmethod
+    def from_lists(cls, stamps: Sequence[float], poses: Iterable[NDArray[np.float64]]) -> Trajectory:
+        pose_list = [np.asarray(p, dtype=np.float64) for p in poses]
+        arr = np.stack(pose_list) if pose_list else np.zeros((0, 4, 4))
+        return cls(np.asarray(stamps, dtype=np.float64), arr)
+
+
+def write_tum(path: str | Path, trajectory: Trajectory) -> None:
+    """Write a trajectory in TUM format (one ``stamp tx ty tz qx qy qz qw`` line per pose)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", encoding="utf-8") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for stamp, pose in zip(trajectory.stamps, trajectory.poses, strict=True):
+            t, q = pose_to_quat(pose)
+            f.write(
+                f"{stamp:.6f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} {q[0]:.6f} {q[1]:.6f} {q[2]:.6f} {q[3]:.6f}\n"
+            )
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory; comment lines (``#``) and blank lines are skipped.
+
+    Raises:
+        DatasetError: naming the file and line when a line is not 8 numbers.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: trajectory file not found")
+    stamps: list[float] = []
+    poses: list[NDArray[np.float64]] = []
+    with path.open(encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            fields = line.replace(",", " ").split()
+            try:
+                values = [float(v) for v in fields]
+            except ValueError as err:
+                raise DatasetError(f"{path}:{lineno}: not a number in TUM line {line!r}") from err
+            if len(values) != 8:
+                raise DatasetError(
+                    f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), got {len(values)}"
+                )
+            stamps.append(values[0])
+            poses.append(pose_from_quat(values[1:4], values[4:8]))
+    return Trajectory.from_lists(stamps, poses)

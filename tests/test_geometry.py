@@ -1,0 +1,61 @@
+import numpy as np
+import pytest
+
+from fleetslam import geometry as g
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(7)
+
+
+def test_quaternion_round_trip_and_sign(rng: np.random.Generator) -> None:
+    for _ in range(50):
+        pose = g.random_pose(rng)
+        t, q = g.pose_to_quat(pose)
+        assert q[3] >= 0.0
+        assert np.isclose(np.linalg.norm(q), 1.0)
+        np.testing.assert_allclose(g.pose_from_quat(t, q), pose, atol=1e-12)
+
+
+def test_quaternion_convention_is_xyzw() -> None:
+    # 90° about z: (x, y, z, w) = (0, 0, sin 45°, cos 45°) maps x to y.
+    r = g.quat_to_matrix([0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)])
+    np.testing.assert_allclose(r @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_invert_and_relative(rng: np.random.Generator) -> None:
+    a, b = g.random_pose(rng, 3.0), g.random_pose(rng, 3.0)
+    np.testing.assert_allclose(g.invert(a) @ a, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(a @ g.relative(a, b), b, atol=1e-12)
+
+
+def test_transform_points_matches_homogeneous(rng: np.random.Generator) -> None:
+    pose = g.random_pose(rng)
+    pts = rng.normal(size=(20, 3))
+    homog = (pose @ np.c_[pts, np.ones(20)].T).T[:, :3]
+    np.testing.assert_allclose(g.transform_points(pose, pts), homog, atol=1e-12)
+
+
+def test_planar_pose_and_yaw() -> None:
+    pose = g.pose_from_planar(1.0, -2.0, 2.5)
+    assert g.yaw_of(pose) == pytest.approx(2.5)
+    assert pose[2, 3] == 0.0
+    assert g.normalize_angle(3 * np.pi) == pytest.approx(np.pi)
+    assert g.normalize_angle(-0.5) == pytest.approx(-0.5)
+
+
+def test_so3_exp_log_and_angle(rng: np.random.Generator) -> None:
+    v = rng.normal(size=3)
+    v *= 1.2 / np.linalg.norm(v)
+    np.testing.assert_allclose(g.so3_log(g.so3_exp(v)), v, atol=1e-12)
+    assert g.rotation_angle(g.so3_exp(v)) == pytest.approx(1.2)
+    np.testing.assert_allclose(g.skew(v) @ [1.0, 2.0, 3.0], np.cross(v, [1.0, 2.0, 3.0]))
+
+
+def test_optical_frame_axes() -> None:
+    # The camera's z (forward) is the body's x; its x (right) is the body's -y; its y (down) is -z.
+    r = g.T_BODY_OPTICAL[:3, :3]
+    np.testing.assert_allclose(r @ [0, 0, 1], [1, 0, 0])
+    np.testing.assert_allclose(r @ [1, 0, 0], [0, -1, 0])
+    np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, -1])
