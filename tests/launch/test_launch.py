@@ -1,0 +1,163 @@
+import io
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from fleetslam.errors import ConfigError
+from fleetslam.launch.description import (
+    FleetDescription,
+    ProcessSpec,
+    RestartPolicy,
+    format_host_instructions,
+    load_fleet,
+    resolve_processes,
+)
+from fleetslam.launch.supervisor import Supervisor
+
+FLEET = """
+router: {endpoint: "tcp/10.1.2.2:7447", host: base}
+domain_id: 3
+environment: {FLEETSLAM_LOG_LEVEL: info}
+agents:
+  - name: c3po
+    host: c3po
+    listen: tcp/10.1.2.10:0
+    nodes:
+      - name: slam
+        command: [slam, node]
+        parameters: {odometry.max_features: 800}
+        remaps: {odom: /c3po/wheel_odom}
+  - name: r2d2
+    host: r2d2
+    nodes:
+      - {name: sim, exec: [my_driver, --fast], environment: {EXTRA: "1"}}
+hosts_nodes:
+  - {name: station, host: base, command: [station, --port, "8080"]}
+"""
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "fleet.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_resolve_sets_environment_and_ros_args(tmp_path: Path) -> None:
+    fleet = load_fleet(_write(tmp_path, FLEET))
+    procs = {p.label: p for p in resolve_processes(fleet, python="py")}
+    assert list(procs) == ["router", "c3po/slam", "r2d2/sim", "station"]
+    slam = procs["c3po/slam"]
+    assert slam.host == "c3po"
+    assert slam.environment["FLEETSLAM_AGENT"] == "c3po"
+    assert slam.environment["FLEETSLAM_ROUTER"] == "tcp/10.1.2.2:7447"
+    assert slam.environment["FLEETSLAM_LISTEN"] == "tcp/10.1.2.10:0"
+    assert slam.environment["ROS_DOMAIN_ID"] == "3"
+    assert slam.environment["FLEETSLAM_LOG_LEVEL"] == "info"
+    assert slam.argv == [
+        "py", "-m", "fleetslam.cli.main", "slam", "node",
+        "--ros-args", "-p", "odometry.max_features:=800", "-r", "odom:=/c3po/wheel_odom",
+    ]  # fmt: skip
+    sim = procs["r2d2/sim"]
+    assert sim.argv == ["my_driver", "--fast"]
+    assert sim.environment["EXTRA"] == "1" and sim.environment["FLEETSLAM_AGENT"] == "r2d2"
+    assert "FLEETSLAM_AGENT" not in procs["station"].environment
+    assert procs["router"].host == "base"
+
+
+def test_print_hosts_groups_by_host(tmp_path: Path) -> None:
+    text = format_host_instructions(load_fleet(_write(tmp_path, FLEET)))
+    assert "# host base" in text and "# host c3po" in text and "# host r2d2" in text
+    c3po = text.split("# host c3po")[1].split("# host")[0]
+    assert "FLEETSLAM_AGENT=c3po" in c3po
+    assert "FLEETSLAM_ROUTER=tcp/10.1.2.2:7447" in c3po
+    assert "fleetslam slam node --ros-args" in c3po
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("agents: [{name: '9bad', nodes: []}]", r"fleet.yaml: key 'agents.0.name' = '9bad'"),
+        ("agents: [{name: a, nodes: [{name: n}]}]", "give exactly one of 'command'"),
+        ("agents: [{name: a}, {name: a}]", r"agent names must be unique, repeated: \['a'\]"),
+        ("domain_id: -1", r"key 'domain_id' = -1"),
+        ("agentz: []", r"key 'agentz' = \[\]: Extra inputs are not permitted"),
+    ],
+)
+def test_validation_errors_name_file_key_value(tmp_path: Path, text: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_fleet(_write(tmp_path, text))
+
+
+def _py(code: str) -> list[str]:
+    return [sys.executable, "-c", code]
+
+
+def test_supervisor_prefixes_output_and_restarts_with_backoff() -> None:
+    out = io.StringIO()
+    crash = ProcessSpec(
+        label="c3po/crashy",
+        host="localhost",
+        argv=_py("import sys; print('boom', flush=True); sys.exit(3)"),
+        environment={},
+        restart=RestartPolicy(initial_backoff_s=0.1, max_backoff_s=0.4, max_restarts=3),
+    )
+    ok = ProcessSpec(
+        label="r2d2/once",
+        host="localhost",
+        argv=_py("import os; print('agent', os.environ['MARK'])"),
+        environment={"MARK": "r2d2"},
+        restart=RestartPolicy(),
+    )
+    supervisor = Supervisor([crash, ok], output=out, grace_s=1.0)
+    start = time.monotonic()
+    supervisor.run(poll_interval_s=0.02)
+    elapsed = time.monotonic() - start
+    text = out.getvalue()
+    assert "[r2d2/once] agent r2d2" in text
+    assert text.count("[c3po/crashy] boom") == 4  # first run + 3 restarts
+    assert "[c3po/crashy] gave up after 3 restarts" in text
+    status = supervisor.status()
+    assert status["c3po/crashy"]["exit_codes"] == [3, 3, 3, 3]
+    assert status["r2d2/once"]["exit_codes"] == [0]
+    assert elapsed >= 0.1 + 0.2 + 0.4  # back-off doubled and capped
+
+
+def test_launch_cli_stops_children_on_ctrl_c(tmp_path: Path) -> None:
+    marker = tmp_path / "child.pid"
+    child = f"import os, time; open({str(marker)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+    fleet = f"""
+    router: {{embedded: false}}
+    agents:
+      - name: c3po
+        nodes:
+          - name: sleeper
+            exec: [{sys.executable!r}, -c, {child!r}]
+    """
+    path = _write(tmp_path, fleet)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fleetslam.cli.main", "launch", str(path), "--grace", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 20
+    while not marker.exists() or not marker.read_text():
+        assert time.monotonic() < deadline, "child never started"
+        time.sleep(0.05)
+    child_pid = int(marker.read_text())
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=20)
+    assert proc.returncode == 0, output
+    assert "[c3po/sleeper] started" in output
+    with pytest.raises(ProcessLookupError):
+        os.kill(child_pid, 0)
+
+
+def test_empty_fleet_is_valid() -> None:
+    assert FleetDescription().agents == []
