@@ -1,0 +1,749 @@
+"""Nodes: publishers, subscriptions, services, clients, timers and typed parameters over Zenoh, rmw_zenoh style.
+
+Threading: every node owns one executor thread. All of a node's callbacks (subscriptions, service handlers,
+timers) run on it, one at a time, in arrival order, so a node's state needs no locks. Samples are received and
+deserialized on Zenoh's threads, counted in the statistics there, and queued per subscription (KEEP_LAST
+depth: the oldest is dropped when the executor falls behind). Callbacks of different nodes run concurrently.
+Publishing is thread-safe and may happen from any thread.
+
+Robustness: a malformed payload, a sample without attachment, an unknown type, a payload over the size limit or
+an exception inside a callback is dropped, counted (``error_msgs`` in /statistics) and logged at a bounded rate;
+the node keeps running.
+"""
+
+from __future__ import annotations
+
+import collections
+import inspect
+import itertools
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import zenoh
+
+from fleetslam.config import ConfigModel, load_config
+from fleetslam.errors import MessageError, MiddlewareError, ServiceError
+from fleetslam.middleware import typesys
+from fleetslam.middleware.context import Context
+from fleetslam.middleware.names import (
+    RosArgs,
+    agent_of,
+    normalize_namespace,
+    parse_ros_args,
+    resolve_name,
+    validate_node_name,
+)
+from fleetslam.middleware.statistics import SubscriptionStatistics
+from fleetslam.middleware.wire import (
+    Attachment,
+    EntityKind,
+    LivelinessToken,
+    QoSProfile,
+    decode_attachment,
+    encode_attachment,
+    parse_topic_key,
+    topic_key,
+    topic_key_any_type,
+)
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MAX_PAYLOAD_BYTES = 256 * 1024 * 1024
+STATISTICS_TOPIC = "/statistics"
+ParamsT = TypeVar("ParamsT", bound=ConfigModel)
+
+
+@dataclass(frozen=True)
+class MessageInfo:
+    """Metadata of a received message."""
+
+    source_timestamp_ns: int
+    received_timestamp_ns: int
+    sequence_number: int
+    publisher_gid: bytes
+    size: int
+    topic: str
+    type_name: str
+
+
+class _RateLimitedLogger:
+    """Logs the first few occurrences of each cause, then at most one line per interval with a count."""
+
+    def __init__(self, first: int = 3, interval_s: float = 10.0) -> None:
+        self._first = first
+        self._interval = interval_s
+        self._state: dict[str, list[float]] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, cause: str, message: str, *args: object) -> None:
+        now = time.monotonic()
+        with self._lock:
+            count, last, suppressed = self._state.get(cause, [0, 0.0, 0])
+            count += 1
+            emit = count <= self._first or now - last >= self._interval
+            self._state[cause] = [count, now if emit else last, 0 if emit else suppressed + 1]
+        if emit:
+            more = f" ({int(suppressed)} more suppressed)" if suppressed else ""
+            log.warning(message + more, *args)
+
+
+class _Executor:
+    """One thread running a node's callbacks in order."""
+
+    def __init__(self, name: str, on_error: Callable[[str, BaseException], None]) -> None:
+        self._queue: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
+        self._on_error = on_error
+        self._thread = threading.Thread(target=self._run, name=f"executor:{name}", daemon=True)
+        self._thread.start()
+
+    def post(self, work: Callable[[], None]) -> None:
+        self._queue.put(work)
+
+    def _run(self) -> None:
+        while True:
+            work = self._queue.get()
+            if work is None:
+                return
+            try:
+                work()
+            except Exception as err:
+                self._on_error(getattr(work, "__qualname__", "callback"), err)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._queue.put(None)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+
+
+class _Entity:
+    """Common part of publishers, subscriptions, services and clients: id, liveliness token, GID."""
+
+    def __init__(self, node: Node, kind: EntityKind, name: str, type_name: str, qos: QoSProfile) -> None:
+        self.node = node
+        self.name = name
+        self.type_name = type_name
+        self.qos = qos
+        self.entity_id = node.context.next_entity_id()
+        self.token_info = LivelinessToken(
+            domain_id=node.context.domain_id,
+            zid=node.context.zid,
+            nid=node.node_id,
+            eid=self.entity_id,
+            kind=kind,
+            namespace=node.namespace,
+            node_name=node.name,
+            topic=name,
+            type_name=type_name,
+            type_hash=typesys.type_hash(type_name),
+            qos=qos,
+        )
+        self.gid = self.token_info.gid
+        self._token: zenoh.LivelinessToken | None = None
+        self._destroyed = False
+
+    def _declare_token(self) -> None:
+        self._token = self.node.context.session.liveliness().declare_token(self.token_info.key())
+
+    def destroy(self) -> None:
+        if self._destroyed:
+            return
+        self._destroyed = True
+        self._undeclare()
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception as err:
+                log.debug("token undeclare: %s", err)
+
+    def _undeclare(self) -> None:
+        raise NotImplementedError
+
+
+class Publisher(_Entity):
+    """Publishes messages of one type on one topic; thread-safe."""
+
+    def __init__(self, node: Node, type_name: str, topic: str, qos: QoSProfile) -> None:
+        super().__init__(node, EntityKind.PUBLISHER, topic, type_name, qos)
+        session = node.context.session
+        self.key = topic_key(node.context.domain_id, topic, type_name)
+        congestion = (
+            zenoh.CongestionControl.BLOCK
+            if qos.reliability == "reliable" and qos.history == "keep_all"
+            else zenoh.CongestionControl.DROP
+        )
+        reliability = zenoh.Reliability.RELIABLE if qos.reliability == "reliable" else zenoh.Reliability.BEST_EFFORT
+        self._advanced = qos.durability == "transient_local"
+        if self._advanced:
+            miss = (
+                zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5)
+                if qos.reliability == "reliable"
+                else None
+            )
+            self._publisher: Any = zenoh.ext.declare_advanced_publisher(
+                session,
+                self.key,
+                congestion_control=congestion,
+                reliability=reliability,
+                cache=zenoh.ext.CacheConfig(max_samples=max(1, qos.depth)),
+                publisher_detection=True,
+                sample_miss_detection=miss,
+            )
+        else:
+            self._publisher = session.declare_publisher(
+                self.key, congestion_control=congestion, reliability=reliability
+            )
+        self._sequence = itertools.count(1)
+        self._lock = threading.Lock()
+        self._declare_token()
+
+    @property
+    def topic(self) -> str:
+        return self.name
+
+    def publish(self, msg: object) -> None:
+        """Serialize (CDR) and publish a message."""
+        self.publish_raw(typesys.serialize(msg, self.type_name))
+
+    def publish_raw(self, payload: bytes, *, source_timestamp_ns: int | None = None) -> None:
+        """Publish already serialized CDR bytes (with header)."""
+        if self._destroyed:
+            raise MiddlewareError(f"publisher of {self.topic} was destroyed")
+        with self._lock:
+            seq = next(self._sequence)
+        stamp = time.time_ns() if source_timestamp_ns is None else source_timestamp_ns
+        self._publisher.put(payload, attachment=encode_attachment(seq, stamp, self.gid))
+
+    def _undeclare(self) -> None:
+        try:
+            self._publisher.undeclare()
+        except Exception as err:
+            log.debug("publisher undeclare: %s", err)
+
+
+def _accepts_info(callback: Callable[..., Any]) -> bool:
+    try:
+        params = [
+            p
+            for p in inspect.signature(callback).parameters.values()
+            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
+        ]
+    except (TypeError, ValueError):
+        return False
+    return len(params) >= 2 or any(p.kind is p.VAR_POSITIONAL for p in params)
+
+
+class Subscription(_Entity):
+    """Receives messages of a topic; the callback runs on the node's executor.
+
+    ``type_name=None`` subscribes to any type (the type is read from each sample's key); with ``raw=True`` the
+    callback gets the CDR bytes instead of a message (for recorders and bridges).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        type_name: str | None,
+        topic: str,
+        callback: Callable[..., Any],
+        qos: QoSProfile,
+        *,
+        raw: bool = False,
+        max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES,
+    ) -> None:
+        self.any_type = type_name is None
+        if type_name is not None:
+            super().__init__(node, EntityKind.SUBSCRIBER, topic, type_name, qos)
+        else:
+            self._init_untyped(node, topic, qos)
+        self.callback = callback
+        self.raw = raw
+        self.max_payload_bytes = max_payload_bytes
+        self._with_info = _accepts_info(callback)
+        self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
+            maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
+        )
+        self.statistics = SubscriptionStatistics(time.time_ns())
+        self.publisher_types: dict[bytes, str] = {}
+        session = node.context.session
+        domain = node.context.domain_id
+        self.key = topic_key_any_type(domain, topic) if self.any_type else topic_key(domain, topic, self.type_name)
+        if qos.durability == "transient_local":
+            history = zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=max(1, qos.depth))
+            recovery = (
+                zenoh.ext.RecoveryConfig(heartbeat=True, periodic_queries=None)
+                if qos.reliability == "reliable"
+                else None
+            )
+            self._subscriber: Any = zenoh.ext.declare_advanced_subscriber(
+                session, self.key, self._on_sample, history=history, recovery=recovery, subscriber_detection=True
+            )
+        else:
+            self._subscriber = session.declare_subscriber(self.key, self._on_sample)
+        if not self.any_type:
+            self._declare_token()
+
+    def _init_untyped(self, node: Node, topic: str, qos: QoSProfile) -> None:
+        # A subscription of unknown type announces no token (its type chunk would be a lie).
+        self.node = node
+        self.name = topic
+        self.type_name = ""
+        self.qos = qos
+        self.entity_id = node.context.next_entity_id()
+        self.gid = b"\x00" * 16
+        self._token = None
+        self._destroyed = False
+
+    @property
+    def topic(self) -> str:
+        return self.name
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        if self._destroyed:
+            return
+        received = time.time_ns()
+        errors = self.node._error_log
+        attachment_bytes = sample.attachment
+        size = len(sample.payload)
+        if attachment_bytes is None:
+            self.statistics.on_error(None, size)
+            errors.warning(f"{self.topic}:noatt", "%s: dropped a sample without attachment", self.topic)
+            return
+        try:
+            attachment: Attachment = decode_attachment(attachment_bytes.to_bytes())
+        except MessageError as err:
+            self.statistics.on_error(None, size)
+            errors.warning(f"{self.topic}:att", "%s: dropped a sample: %s", self.topic, err)
+            return
+        if size > self.max_payload_bytes:
+            self.statistics.on_error(attachment.gid, size)
+            errors.warning(
+                f"{self.topic}:size",
+                "%s: dropped a %d-byte sample over the %d-byte limit",
+                self.topic,
+                size,
+                self.max_payload_bytes,
+            )
+            return
+        type_name = self.type_name
+        if self.any_type:
+            try:
+                type_name = parse_topic_key(str(sample.key_expr))[2]
+            except MessageError as err:
+                self.statistics.on_error(attachment.gid, size)
+                errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
+                return
+        payload = sample.payload.to_bytes()
+        message: Any = payload
+        if not self.raw:
+            try:
+                message = typesys.deserialize(payload, type_name)
+            except MessageError as err:
+                self.statistics.on_error(attachment.gid, size)
+                errors.warning(f"{self.topic}:cdr", "%s: dropped a malformed sample: %s", self.topic, err)
+                return
+        self.publisher_types[attachment.gid] = type_name
+        self.statistics.on_sample(
+            attachment.gid, attachment.sequence_number, attachment.source_timestamp_ns, received, size
+        )
+        info = MessageInfo(
+            attachment.source_timestamp_ns,
+            received,
+            attachment.sequence_number,
+            attachment.gid,
+            size,
+            self.topic,
+            type_name,
+        )
+        self._pending.append((message, info))
+        self.node._executor.post(self._dispatch)
+
+    def _dispatch(self) -> None:
+        try:
+            message, info = self._pending.popleft()
+        except IndexError:  # dropped by KEEP_LAST while queued
+            return
+        try:
+            if self._with_info:
+                self.callback(message, info)
+            else:
+                self.callback(message)
+        except Exception as err:
+            self.statistics.on_error(info.publisher_gid)
+            self.node._error_log.warning(
+                f"{self.topic}:cb", "%s: callback %s raised %s: %s", self.topic, self.callback, type(err).__name__, err
+            )
+
+    def _undeclare(self) -> None:
+        try:
+            self._subscriber.undeclare()
+        except Exception as err:
+            log.debug("subscriber undeclare: %s", err)
+
+
+class Service(_Entity):
+    """Answers requests: a complete queryable whose handler runs on the node's executor."""
+
+    def __init__(self, node: Node, type_name: str, name: str, handler: Callable[[Any], Any], qos: QoSProfile) -> None:
+        if not typesys.is_service_type(type_name):
+            raise MessageError(f"'{type_name}' is not a service type (pkg/srv/Name)")
+        super().__init__(node, EntityKind.SERVICE, name, type_name, qos)
+        self.request_type, self.response_type = typesys.service_types(type_name)
+        self.handler = handler
+        self.key = topic_key(node.context.domain_id, name, type_name)
+        self._queryable = node.context.session.declare_queryable(self.key, self._on_query, complete=True)
+        self._declare_token()
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        errors = self.node._error_log
+        if query.attachment is None:
+            errors.warning(f"{self.name}:noatt", "service %s: rejected a request without attachment", self.name)
+            query.reply_err(b"request without attachment")
+            return
+        try:
+            attachment = decode_attachment(query.attachment.to_bytes())
+            if attachment.sequence_number < 0 or attachment.source_timestamp_ns < 0:
+                raise MessageError("negative sequence number or timestamp")
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            request = typesys.deserialize(payload, self.request_type)
+        except MessageError as err:
+            errors.warning(f"{self.name}:bad", "service %s: rejected a request: %s", self.name, err)
+            query.reply_err(str(err).encode())
+            return
+
+        def answer() -> None:
+            try:
+                response = self.handler(request)
+                data = typesys.serialize(response, self.response_type)
+            except Exception as err:
+                errors.warning(
+                    f"{self.name}:cb", "service %s: handler raised %s: %s", self.name, type(err).__name__, err
+                )
+                query.reply_err(f"{type(err).__name__}: {err}".encode())
+                query.drop()
+                return
+            reply_attachment = encode_attachment(attachment.sequence_number, time.time_ns(), attachment.gid)
+            query.reply(self.key, data, attachment=reply_attachment)
+            query.drop()
+
+        self.node._executor.post(answer)
+
+    def _undeclare(self) -> None:
+        try:
+            self._queryable.undeclare()
+        except Exception as err:
+            log.debug("queryable undeclare: %s", err)
+
+
+class Client(_Entity):
+    """Calls a service: a query to every complete queryable, replies matched by sequence number."""
+
+    def __init__(self, node: Node, type_name: str, name: str, qos: QoSProfile) -> None:
+        if not typesys.is_service_type(type_name):
+            raise MessageError(f"'{type_name}' is not a service type (pkg/srv/Name)")
+        super().__init__(node, EntityKind.CLIENT, name, type_name, qos)
+        self.request_type, self.response_type = typesys.service_types(type_name)
+        self.key = topic_key(node.context.domain_id, name, type_name)
+        self._sequence = itertools.count(1)
+        self._lock = threading.Lock()
+        self._declare_token()
+
+    def service_is_ready(self) -> bool:
+        graph = self.node.context.graph
+        return any(info.topic_type == self.type_name for info in graph.services_info(self.name))
+
+    def wait_for_service(self, timeout_s: float = 5.0) -> bool:
+        """Wait until a server of this name and type is in the graph (the hash is not compared, as in rmw)."""
+        return self.node.context.graph.wait_for(lambda g: self.service_is_ready(), timeout_s)
+
+    def call(self, request: object, timeout: float = 10.0) -> Any:
+        """Send a request and wait for its response; raises ServiceError on timeout or a server error."""
+        with self._lock:
+            seq = next(self._sequence)
+        payload = typesys.serialize(request, self.request_type)
+        replies = self.node.context.session.get(
+            self.key,
+            payload=payload,
+            attachment=encode_attachment(seq, time.time_ns(), self.gid),
+            target=zenoh.QueryTarget.ALL_COMPLETE,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout,
+        )
+        errors = []
+        for reply in replies:
+            if reply.ok is None:
+                errors.append(reply.err.payload.to_bytes().decode(errors="replace") if reply.err else "error")
+                continue
+            sample = reply.ok
+            try:
+                if sample.attachment is None or decode_attachment(sample.attachment.to_bytes()).sequence_number != seq:
+                    continue
+                return typesys.deserialize(sample.payload.to_bytes(), self.response_type)
+            except MessageError as err:
+                errors.append(str(err))
+        detail = f": {'; '.join(errors)}" if errors else f" within {timeout} s (is a server running?)"
+        raise ServiceError(f"service {self.name} ({self.type_name}) gave no response{detail}")
+
+    def _undeclare(self) -> None:
+        pass
+
+
+class Timer:
+    """Calls a callback on the node's executor every ``period_s`` (skips ticks while one is still queued)."""
+
+    def __init__(self, node: Node, period_s: float, callback: Callable[[], Any]) -> None:
+        if period_s <= 0:
+            raise MiddlewareError(f"timer period must be positive, got {period_s}")
+        self.period_s = period_s
+        self.callback = callback
+        self._node = node
+        self._stop = threading.Event()
+        self._queued = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"timer:{node.name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_tick = time.monotonic() + self.period_s
+        while not self._stop.wait(max(0.0, next_tick - time.monotonic())):
+            next_tick += self.period_s
+            if time.monotonic() - next_tick > self.period_s:  # fell far behind: don't burst
+                next_tick = time.monotonic() + self.period_s
+            if not self._queued.is_set():
+                self._queued.set()
+                self._node._executor.post(self._fire)
+
+    def _fire(self) -> None:
+        self._queued.clear()
+        if not self._stop.is_set():
+            self.callback()
+
+    def cancel(self) -> None:
+        self._stop.set()
+
+
+class Node(Generic[ParamsT]):
+    """A named participant of the graph, a context manager.
+
+    Args:
+        name: node base name.
+        context: the process's context.
+        namespace: overrides the context's namespace (``FLEETSLAM_AGENT``).
+        remaps: name remapping rules ``{from: to}``.
+        parameters: the node's parameter model (a ConfigModel subclass); validated into ``node.parameters``.
+        parameter_file: YAML file of parameter values (the whole file, or its ``<node name>`` key if present).
+        parameter_overrides: ``key=value`` overrides.
+        ros_args: a command line with ``--ros-args`` sections (remaps, ``__ns``, ``__node``, ``-p``).
+        statistics_period_s: window of the /statistics reports (0 disables them for this node).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        context: Context,
+        namespace: str | None = None,
+        remaps: Mapping[str, str] | None = None,
+        parameters: type[ParamsT] | None = None,
+        parameter_file: str | Path | None = None,
+        parameter_overrides: Sequence[str] = (),
+        ros_args: Sequence[str] | RosArgs | None = None,
+        statistics_period_s: float = 1.0,
+    ) -> None:
+        parsed = ros_args if isinstance(ros_args, RosArgs) else parse_ros_args(ros_args or [])
+        self.context = context
+        self.name = validate_node_name(parsed.node_name or name)
+        self.namespace = normalize_namespace(parsed.namespace or namespace or context.namespace)
+        self.remaps = {**dict(remaps or {}), **parsed.remaps}
+        self.fq_name = f"{self.namespace.rstrip('/')}/{self.name}"
+        self.agent = agent_of(f"{self.fq_name}/x")
+        self._error_log = _RateLimitedLogger()
+        self.callback_errors = 0
+        self.parameters: ParamsT = self._load_parameters(
+            parameters, parameter_file or (parsed.params_files[-1] if parsed.params_files else None),
+            [*parameter_overrides, *(f"{k}={v}" for k, v in parsed.parameters.items())],
+        )  # fmt: skip
+        self.node_id = context.next_entity_id()
+        self._token_info = LivelinessToken(
+            domain_id=context.domain_id,
+            zid=context.zid,
+            nid=self.node_id,
+            eid=self.node_id,
+            kind=EntityKind.NODE,
+            namespace=self.namespace,
+            node_name=self.name,
+        )
+        self._executor = _Executor(self.fq_name, self._on_executor_error)
+        self._entities: list[_Entity] = []
+        self._timers: list[Timer] = []
+        self._subscriptions: list[Subscription] = []
+        self._statistics_publisher: Publisher | None = None
+        self._destroyed = False
+        self._token = context.session.liveliness().declare_token(self._token_info.key())
+        context._register(self)
+        if statistics_period_s > 0 and context.statistics_enabled:
+            self._timers.append(Timer(self, statistics_period_s, self._publish_statistics))
+
+    def _load_parameters(self, model: type[ParamsT] | None, path: str | Path | None, overrides: list[str]) -> ParamsT:
+        if model is None:
+            if overrides or path:
+                log.warning("%s: parameters given but the node declares none; ignored", self.fq_name)
+            return None  # type: ignore[return-value]
+        section = None
+        if path is not None:
+            from fleetslam.config import read_yaml
+
+            data = read_yaml(path)
+            section = self.name if self.name in data and isinstance(data[self.name], dict) else None
+        return load_config(model, path, overrides=overrides, section=section)
+
+    def _on_executor_error(self, what: str, err: BaseException) -> None:
+        self.callback_errors += 1
+        self._error_log.warning(f"exec:{what}", "%s: %s raised %s: %s", self.fq_name, what, type(err).__name__, err)
+
+    # -- names -------------------------------------------------------------------------------------------------
+    def resolve(self, name: str) -> str:
+        """Fully qualified name of a topic/service name as this node sees it (namespace, ~, remaps)."""
+        return resolve_name(name, namespace=self.namespace, node_name=self.name, remaps=self.remaps)
+
+    # -- entities ----------------------------------------------------------------------------------------------
+    def _add(self, entity: Any) -> Any:
+        if self._destroyed:
+            entity.destroy()
+            raise MiddlewareError(f"node {self.fq_name} was destroyed")
+        self._entities.append(entity)
+        return entity
+
+    def create_publisher(self, type_name: str, topic: str, qos: QoSProfile | None = None) -> Publisher:
+        typesys.get_type(type_name)
+        publisher: Publisher = self._add(Publisher(self, type_name, self.resolve(topic), qos or QoSProfile()))
+        return publisher
+
+    def create_subscription(
+        self,
+        type_name: str | None,
+        topic: str,
+        callback: Callable[..., Any],
+        qos: QoSProfile | None = None,
+        *,
+        raw: bool = False,
+        max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES,
+    ) -> Subscription:
+        """Subscribe; ``callback(msg)`` or ``callback(msg, info: MessageInfo)`` runs on the executor."""
+        if type_name is not None:
+            typesys.get_type(type_name)
+        subscription: Subscription = self._add(
+            Subscription(
+                self,
+                type_name,
+                self.resolve(topic),
+                callback,
+                qos or QoSProfile(),
+                raw=raw,
+                max_payload_bytes=max_payload_bytes,
+            )
+        )
+        self._subscriptions.append(subscription)
+        return subscription
+
+    def create_service(
+        self, type_name: str, name: str, handler: Callable[[Any], Any], qos: QoSProfile | None = None
+    ) -> Service:
+        """Serve requests; ``handler(request) -> response`` runs on the executor."""
+        service: Service = self._add(Service(self, type_name, self.resolve(name), handler, qos or QoSProfile()))
+        return service
+
+    def create_client(self, type_name: str, name: str, qos: QoSProfile | None = None) -> Client:
+        client: Client = self._add(Client(self, type_name, self.resolve(name), qos or QoSProfile()))
+        return client
+
+    def create_timer(self, period_s: float, callback: Callable[[], Any]) -> Timer:
+        timer = Timer(self, period_s, callback)
+        self._timers.append(timer)
+        return timer
+
+    def call_soon(self, callback: Callable[[], Any]) -> None:
+        """Run a callback on this node's executor (from any thread)."""
+        self._executor.post(callback)
+
+    # -- time --------------------------------------------------------------------------------------------------
+    @staticmethod
+    def now_ns() -> int:
+        """Wall-clock time in ns since the epoch (the source timestamp of published samples)."""
+        return time.time_ns()
+
+    # -- statistics --------------------------------------------------------------------------------------------
+    def _publish_statistics(self) -> None:
+        subscriptions = [s for s in self._subscriptions if s.topic != STATISTICS_TOPIC and not s._destroyed]
+        if not subscriptions:
+            return
+        if self._statistics_publisher is None:
+            self._statistics_publisher = self.create_publisher(
+                "fleetslam_msgs/msg/TopicStatistics", STATISTICS_TOPIC, QoSProfile(depth=100)
+            )
+        stats_type = typesys.get_type("fleetslam_msgs/msg/TopicStatistics")
+        now = time.time_ns()
+        graph = self.context.graph
+        for subscription in subscriptions:
+            for report in subscription.statistics.close_window(now):
+                publisher = graph.entity_by_gid(report.publisher_gid)
+                node_pub = publisher.node_fq_name if publisher is not None else ""
+                msg = stats_type(
+                    topic=subscription.topic,
+                    type=subscription.publisher_types.get(report.publisher_gid, subscription.type_name),
+                    node_pub=node_pub,
+                    node_sub=self.fq_name,
+                    agent_pub=agent_of(f"{node_pub}/x") if node_pub else agent_of(subscription.topic),
+                    agent_sub=self.agent,
+                    publisher_gid=_gid_array(report.publisher_gid),
+                    window_start=typesys.stamp_from_ns(report.window_start_ns),
+                    window_stop=typesys.stamp_from_ns(report.window_stop_ns),
+                    delivered_msgs=report.delivered,
+                    dropped_msgs=report.dropped,
+                    error_msgs=report.errors,
+                    traffic=report.traffic_bytes,
+                    period_mean=typesys.duration_from_ns(int(report.period_mean_ns)),
+                    period_stddev=typesys.duration_from_ns(int(report.period_stddev_ns)),
+                    period_max=typesys.duration_from_ns(int(report.period_max_ns)),
+                    stamp_age_mean=typesys.duration_from_ns(int(report.age_mean_ns)),
+                    stamp_age_stddev=typesys.duration_from_ns(int(report.age_stddev_ns)),
+                    stamp_age_max=typesys.duration_from_ns(int(report.age_max_ns)),
+                )
+                self._statistics_publisher.publish(msg)
+
+    # -- lifecycle ---------------------------------------------------------------------------------------------
+    def spin(self, timeout_s: float | None = None) -> None:
+        """Block until the context closes, ``timeout_s`` passes, or Ctrl-C (callbacks run on the executor)."""
+        self.context.spin(timeout_s)
+
+    def destroy(self) -> None:
+        """Undeclare every entity and the node's token; stop its timers and executor."""
+        if self._destroyed:
+            return
+        self._destroyed = True
+        for timer in self._timers:
+            timer.cancel()
+        for entity in self._entities:
+            entity.destroy()
+        try:
+            self._token.undeclare()
+        except Exception as err:
+            log.debug("node token undeclare: %s", err)
+        self._executor.stop()
+        self.context._unregister(self)
+
+    def __enter__(self) -> Node[ParamsT]:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.destroy()
+
+
+def _gid_array(gid: bytes) -> Any:
+    import numpy as np
+
+    return np.frombuffer(gid.ljust(16, b"\x00")[:16], dtype=np.uint8).copy()

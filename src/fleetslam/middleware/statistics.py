@@ -1,0 +1,145 @@
+"""Per-subscription network statistics, as ROS 1's TopicStatistics, for each publisher (by GID) and window.
+
+For every received sample the subscription records its size, the gap in the publisher's sequence numbers
+(dropped messages), the period since the publisher's previous sample, and the age (receive time minus the
+attachment's source timestamp). Each update is O(1) with no allocation: running sums of values and squares.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+
+
+@dataclass
+class RunningStats:
+    """Count, mean, standard deviation and max of a stream of nanosecond values."""
+
+    count: int = 0
+    total: float = 0.0
+    total_sq: float = 0.0
+    maximum: float = 0.0
+
+    def add(self, value: float) -> None:
+        self.count += 1
+        self.total += value
+        self.total_sq += value * value
+        if value > self.maximum or self.count == 1:
+            self.maximum = value
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
+
+    @property
+    def stddev(self) -> float:
+        if self.count < 2:
+            return 0.0
+        variance = (self.total_sq - self.total * self.total / self.count) / (self.count - 1)
+        return math.sqrt(max(variance, 0.0))
+
+
+@dataclass
+class PublisherWindow:
+    """What one subscription saw from one publisher in the current window."""
+
+    delivered: int = 0
+    dropped: int = 0
+    errors: int = 0
+    traffic_bytes: int = 0
+    period: RunningStats = field(default_factory=RunningStats)
+    age: RunningStats = field(default_factory=RunningStats)
+
+
+@dataclass(frozen=True)
+class WindowReport:
+    """A closed window of one (publisher GID, subscription) pair."""
+
+    publisher_gid: bytes
+    window_start_ns: int
+    window_stop_ns: int
+    delivered: int
+    dropped: int
+    errors: int
+    traffic_bytes: int
+    period_mean_ns: float
+    period_stddev_ns: float
+    period_max_ns: float
+    age_mean_ns: float
+    age_stddev_ns: float
+    age_max_ns: float
+
+
+_NO_GID = b"\x00" * 16
+
+
+class SubscriptionStatistics:
+    """Statistics of one subscription, per publisher GID, over windows closed by :meth:`close_window`."""
+
+    def __init__(self, now_ns: int) -> None:
+        self._lock = threading.Lock()
+        self._window_start = now_ns
+        self._windows: dict[bytes, PublisherWindow] = {}
+        self._last_seq: dict[bytes, int] = {}
+        self._last_receive: dict[bytes, int] = {}
+        self.total_delivered = 0
+        self.total_dropped = 0
+        self.total_errors = 0
+
+    def on_sample(self, gid: bytes, sequence_number: int, source_ns: int, receive_ns: int, size: int) -> None:
+        """Record a delivered sample."""
+        with self._lock:
+            window = self._windows.get(gid)
+            if window is None:
+                window = self._windows[gid] = PublisherWindow()
+            window.delivered += 1
+            window.traffic_bytes += size
+            self.total_delivered += 1
+            previous = self._last_seq.get(gid)
+            if previous is not None and sequence_number > previous + 1:
+                gap = sequence_number - previous - 1
+                window.dropped += gap
+                self.total_dropped += gap
+            if previous is None or sequence_number > previous:
+                self._last_seq[gid] = sequence_number
+            last = self._last_receive.get(gid)
+            if last is not None:
+                window.period.add(receive_ns - last)
+            self._last_receive[gid] = receive_ns
+            window.age.add(receive_ns - source_ns)
+
+    def on_error(self, gid: bytes | None, size: int = 0) -> None:
+        """Record a sample that was dropped as malformed, oversized or unprocessable."""
+        with self._lock:
+            key = gid or _NO_GID
+            window = self._windows.get(key)
+            if window is None:
+                window = self._windows[key] = PublisherWindow()
+            window.errors += 1
+            window.traffic_bytes += size
+            self.total_errors += 1
+
+    def close_window(self, now_ns: int) -> list[WindowReport]:
+        """Reports of the window that ends now (only publishers with activity), and start a new window."""
+        with self._lock:
+            windows, self._windows = self._windows, {}
+            start, self._window_start = self._window_start, now_ns
+        return [
+            WindowReport(
+                publisher_gid=gid,
+                window_start_ns=start,
+                window_stop_ns=now_ns,
+                delivered=w.delivered,
+                dropped=w.dropped,
+                errors=w.errors,
+                traffic_bytes=w.traffic_bytes,
+                period_mean_ns=w.period.mean,
+                period_stddev_ns=w.period.stddev,
+                period_max_ns=w.period.maximum,
+                age_mean_ns=w.age.mean,
+                age_stddev_ns=w.age.stddev,
+                age_max_ns=w.age.maximum,
+            )
+            for gid, w in windows.items()
+        ]
