@@ -68,9 +68,7 @@ def _configure_logging(verbosity: int) -> None:
     named = logging.getLevelName(os.environ.get("FLEETSLAM_LOG_LEVEL", "").upper())
     if isinstance(named, int):
         level = named
-    logging.basicConfig(
-        level=level, format="%(asctime)s %(levelname).1s %(name)s: %(message)s", datefmt="%H:%M:%S"
-    )
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname).1s %(name)s: %(message)s", datefmt="%H:%M:%S")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -95,7 +93,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     module = importlib.import_module(commands[name][0])
     parser = argparse.ArgumentParser(prog=f"fleetslam {name}", description=commands[name][1])
     module.configure(parser)
+    # `--ros-args ...` (remaps, parameters, as the launcher passes them) is for the node, not for argparse.
+    ros_args: list[str] = []
+    if "--ros-args" in args:
+        cut = args.index("--ros-args")
+        args, ros_args = args[:cut], args[cut:]
     namespace = parser.parse_args(args)
+    namespace.ros_args = ros_args
     func = getattr(namespace, "func", None)
     if func is None:
         parser.print_help()

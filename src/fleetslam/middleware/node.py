@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any
 
 import zenoh
 
@@ -56,7 +56,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_MAX_PAYLOAD_BYTES = 256 * 1024 * 1024
 STATISTICS_TOPIC = "/statistics"
-ParamsT = TypeVar("ParamsT", bound=ConfigModel)
 
 
 @dataclass(frozen=True)
@@ -526,7 +525,7 @@ class Timer:
         self._stop.set()
 
 
-class Node(Generic[ParamsT]):
+class Node:
     """A named participant of the graph, a context manager.
 
     Args:
@@ -548,7 +547,7 @@ class Node(Generic[ParamsT]):
         context: Context,
         namespace: str | None = None,
         remaps: Mapping[str, str] | None = None,
-        parameters: type[ParamsT] | None = None,
+        parameters: type[ConfigModel] | None = None,
         parameter_file: str | Path | None = None,
         parameter_overrides: Sequence[str] = (),
         ros_args: Sequence[str] | RosArgs | None = None,
@@ -563,7 +562,7 @@ class Node(Generic[ParamsT]):
         self.agent = agent_of(f"{self.fq_name}/x")
         self._error_log = _RateLimitedLogger()
         self.callback_errors = 0
-        self.parameters: ParamsT = self._load_parameters(
+        self.parameters: Any = self._load_parameters(
             parameters, parameter_file or (parsed.params_files[-1] if parsed.params_files else None),
             [*parameter_overrides, *(f"{k}={v}" for k, v in parsed.parameters.items())],
         )  # fmt: skip
@@ -588,11 +587,11 @@ class Node(Generic[ParamsT]):
         if statistics_period_s > 0 and context.statistics_enabled:
             self._timers.append(Timer(self, statistics_period_s, self._publish_statistics))
 
-    def _load_parameters(self, model: type[ParamsT] | None, path: str | Path | None, overrides: list[str]) -> ParamsT:
+    def _load_parameters(self, model: type[ConfigModel] | None, path: str | Path | None, overrides: list[str]) -> Any:
         if model is None:
             if overrides or path:
                 log.warning("%s: parameters given but the node declares none; ignored", self.fq_name)
-            return None  # type: ignore[return-value]
+            return None
         section = None
         if path is not None:
             from fleetslam.config import read_yaml
@@ -736,7 +735,7 @@ class Node(Generic[ParamsT]):
         self._executor.stop()
         self.context._unregister(self)
 
-    def __enter__(self) -> Node[ParamsT]:
+    def __enter__(self) -> Node:
         return self
 
     def __exit__(self, *exc: Any) -> None:

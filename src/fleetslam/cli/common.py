@@ -1,0 +1,38 @@
+"""Helpers shared by the CLI commands that join the fleet: one context, one node, readable output."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import yaml
+
+from fleetslam.middleware import Context, Node
+
+
+@contextlib.contextmanager
+def cli_node(name: str, *, statistics: bool = False, namespace: str = "/") -> Iterator[Node]:
+    """A context and an anonymous-ish tool node (``_fleetslam_<name>_<pid>``) for the duration of a command."""
+    import os
+
+    with (
+        Context(statistics=statistics) as ctx,
+        Node(f"_fleetslam_{name}_{os.getpid()}", context=ctx, namespace=namespace, statistics_period_s=0) as node,
+    ):
+        yield node
+
+
+def wait_for_graph(node: Node, predicate: Callable[[], bool], timeout_s: float = 1.0) -> bool:
+    """Give discovery a moment (tokens arrive asynchronously) until ``predicate`` holds."""
+    return node.context.graph.wait_for(lambda _: predicate(), timeout_s)
+
+
+def to_yaml(data: Any) -> str:
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=False, width=120)
+
+
+def settle(seconds: float = 0.3) -> None:
+    """Let discovery settle before publishing from a fresh session."""
+    time.sleep(seconds)

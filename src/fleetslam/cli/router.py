@@ -1,0 +1,33 @@
+"""`fleetslam router`: run the fleet's Zenoh router (the discovery service) until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+
+from fleetslam.middleware.router import DEFAULT_ROUTER_LISTEN, Router
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"endpoint to listen on, repeatable (default {DEFAULT_ROUTER_LISTEN[0]})",
+    )
+    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with Router(args.listen or list(DEFAULT_ROUTER_LISTEN), connect=args.connect) as router:
+        print(f"fleetslam router {router.zid} listening on {', '.join(router.listen)} (Ctrl-C to stop)", flush=True)
+        try:
+            while not stop.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+    return 0
