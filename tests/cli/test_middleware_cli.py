@@ -16,21 +16,13 @@ from fleetslam.errors import MiddlewareError
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.typesys import get_type
 
-from ..middleware.conftest import make_context, router_endpoint, wait_until  # noqa: F401
+from ..support import free_port, wait_until
 
 String = get_type("std_msgs/msg/String")
 
 
 @pytest.fixture
-def fleet_env(router_endpoint: str, monkeypatch: pytest.MonkeyPatch) -> str:  # noqa: F811
-    monkeypatch.setenv("FLEETSLAM_ROUTER", router_endpoint)
-    monkeypatch.setenv("FLEETSLAM_LISTEN", "tcp/127.0.0.1:0")
-    monkeypatch.delenv("FLEETSLAM_AGENT", raising=False)
-    return router_endpoint
-
-
-@pytest.fixture
-def talker(fleet_env: str, make_context: Callable[..., Context]) -> Iterator[Node]:  # noqa: F811
+def talker(fleet_env: str, make_context: Callable[..., Context]) -> Iterator[Node]:
     node = Node("talker", context=make_context("c3po"))
     publisher = node.create_publisher("std_msgs/msg/String", "chatter")
     response_type = get_type("std_srvs/srv/SetBool_Response")
@@ -113,7 +105,7 @@ def test_hz_and_bw(talker: Node, capsys: pytest.CaptureFixture[str]) -> None:
 def test_record_and_play_round_trip(
     talker: Node,
     tmp_path: Path,
-    make_context: Callable[..., Context],  # noqa: F811
+    make_context: Callable[..., Context],
 ) -> None:
     bag = tmp_path / "bag"
     assert main(["record", "-o", str(bag), "/c3po/chatter", "--duration", "1.5"]) == 0
@@ -157,8 +149,6 @@ def test_stats_shows_agents(
 
 
 def test_tools_fail_fast_without_router(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    from ..middleware.conftest import free_port
-
     monkeypatch.setenv("FLEETSLAM_ROUTER", f"tcp/127.0.0.1:{free_port()}")
     monkeypatch.setenv("FLEETSLAM_LISTEN", "tcp/127.0.0.1:0")
     assert main(["topic", "list"]) == 3

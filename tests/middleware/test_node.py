@@ -16,7 +16,7 @@ from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, serialize
 from fleetslam.middleware.wire import decode_attachment, encode_attachment, topic_key
 
-from .conftest import free_port, wait_until
+from ..support import free_port, wait_until
 
 String = get_type("std_msgs/msg/String")
 STRING_KEY = "0/c3po/chatter/std_msgs::msg::dds_::String_/" + (
