@@ -2,17 +2,21 @@
 
 Environment (explicit constructor arguments win):
 
-- ``FLEETSLAM_ROUTER``: router endpoint(s), comma separated (default ``tcp/localhost:7447``; the master's role);
-- ``FLEETSLAM_LISTEN``: this host's listen endpoint (default ``tcp/localhost:0``; the ROS_IP role);
-- ``FLEETSLAM_AGENT``: default namespace of the process's nodes;
+- ``FLEETSLAM_ROUTER``: router endpoint(s), comma separated (default ``tcp/localhost:7447``; the ROS master's
+  role);
+- ``FLEETSLAM_LISTEN``: this host's listen endpoint(s) (default ``tcp/localhost:0``; the ROS_IP role);
+- ``FLEETSLAM_AGENT``: default namespace of the process's nodes (``c3po`` → ``/c3po``);
 - ``ROS_DOMAIN_ID``: first chunk of every key (default 0);
-- ``ZENOH_SESSION_CONFIG_URI``: a JSON5 session config replacing the defaults (then the router/listen
-  variables are not applied unless given explicitly);
+- ``ZENOH_SESSION_CONFIG_URI``: a JSON5 session config that replaces the defaults; the router and listen
+  endpoints are then applied only when given explicitly (argument or variable);
 - ``ZENOH_CONFIG_OVERRIDE``: ``a/b=json5;c=json5`` pairs inserted on top (bad pairs are warned about and skipped);
+- ``ZENOH_ROUTER_CHECK_ATTEMPTS``: unset → wait up to 2 s for the router, ``<0`` → don't check, ``0`` → wait
+  forever, ``n`` → wait up to n seconds (rmw checks n times 1 s apart);
 - ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off.
 
 The default session is rmw_zenoh's: peer mode connected to the router, multicast scouting off, gossip on,
-timestamping on, queries time out after 600 s.
+timestamping on, queries time out after 600 s. Without a reachable router the context raises
+:class:`~fleetslam.errors.RouterUnreachableError` at once, saying how to start one.
 """
 
 from __future__ import annotations
@@ -20,11 +24,11 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import math
 import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -40,22 +44,24 @@ log = logging.getLogger(__name__)
 
 DEFAULT_ROUTER = "tcp/localhost:7447"
 DEFAULT_LISTEN = "tcp/localhost:0"
+DEFAULT_ROUTER_TIMEOUT_S = 2.0
 
 
-def _split_endpoints(text: str | Sequence[str]) -> list[str]:
+def split_endpoints(text: str | Sequence[str]) -> list[str]:
+    """``"tcp/a:1, tcp/b:2"`` (or a list) → ``["tcp/a:1", "tcp/b:2"]``."""
     items = text.split(",") if isinstance(text, str) else list(text)
     return [item.strip() for item in items if item.strip()]
 
 
 def apply_config_overrides(config: zenoh.Config, overrides: str) -> list[str]:
-    """Apply ``ZENOH_CONFIG_OVERRIDE``-style pairs; returns the pairs that were skipped (and warns)."""
+    """Apply ``ZENOH_CONFIG_OVERRIDE``-style pairs; returns the pairs that were skipped (each is warned about)."""
     skipped = []
     for pair in overrides.split(";"):
         pair = pair.strip()
         if not pair:
             continue
         key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
+        if not sep or not key.strip() or not value.strip():
             log.warning("ZENOH_CONFIG_OVERRIDE: skipping %r (expected key=json5)", pair)
             skipped.append(pair)
             continue
@@ -67,55 +73,85 @@ def apply_config_overrides(config: zenoh.Config, overrides: str) -> list[str]:
     return skipped
 
 
+def load_config_file(uri: str, variable: str) -> zenoh.Config:
+    """A Zenoh JSON5 config file; an invalid or missing file is a ConfigError naming the variable."""
+    try:
+        return zenoh.Config.from_file(uri)
+    except Exception as err:
+        raise ConfigError(f"{variable}={uri}: invalid Zenoh config file: {err}") from err
+
+
 def session_config(
     *,
-    mode: str = "peer",
-    connect: Sequence[str] = (),
-    listen: Sequence[str] = (),
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
     environ: Mapping[str, str] | None = None,
-    use_config_file: bool = True,
 ) -> zenoh.Config:
-    """rmw_zenoh's default session config (or the file in ZENOH_SESSION_CONFIG_URI), plus overrides."""
+    """rmw_zenoh's default peer session config (or the file in ``ZENOH_SESSION_CONFIG_URI``), plus overrides.
+
+    With the defaults, ``None`` endpoints mean none; with a file, ``None`` keeps the file's endpoints.
+    """
     environ = os.environ if environ is None else environ
-    uri = environ.get("ZENOH_SESSION_CONFIG_URI", "").strip() if use_config_file else ""
+    uri = environ.get("ZENOH_SESSION_CONFIG_URI", "").strip()
     if uri:
-        path = Path(uri)
-        try:
-            config = zenoh.Config.from_file(str(path))
-        except Exception as err:
-            raise ConfigError(f"ZENOH_SESSION_CONFIG_URI={uri}: invalid Zenoh config: {err}") from err
-        if connect:
-            config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        if listen:
-            config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        config = load_config_file(uri, "ZENOH_SESSION_CONFIG_URI")
     else:
         config = zenoh.Config()
-        config.insert_json5("mode", json.dumps(mode))
-        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
         config.insert_json5("scouting/gossip/enabled", "true")
-        config.insert_json5("timestamping/enabled", "true" if mode == "router" else '{"router": true, "peer": true}')
+        config.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
         config.insert_json5("queries_default_timeout", "600000")
+        connect = connect or []
+        listen = listen or []
+    if connect is not None:
+        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen is not None:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     overrides = environ.get("ZENOH_CONFIG_OVERRIDE", "")
     if overrides:
         apply_config_overrides(config, overrides)
     return config
 
 
+def router_timeout_from_env(environ: Mapping[str, str]) -> float:
+    """Seconds to wait for the router per ``ZENOH_ROUTER_CHECK_ATTEMPTS`` (inf = forever, negative = no check)."""
+    text = environ.get("ZENOH_ROUTER_CHECK_ATTEMPTS", "").strip()
+    if not text:
+        return DEFAULT_ROUTER_TIMEOUT_S
+    try:
+        attempts = int(text)
+    except ValueError as err:
+        raise ConfigError(f"environment variable ZENOH_ROUTER_CHECK_ATTEMPTS={text!r}: expected an integer") from err
+    return math.inf if attempts == 0 else float(attempts)
+
+
+def endpoints_of(config: zenoh.Config, key: str) -> list[str]:
+    """The endpoint list at ``key`` of a config ([] when absent or mode-dependent)."""
+    try:
+        value = json.loads(config.get_json(key))
+    except Exception:  # a key the config file does not have
+        return []
+    return [str(v) for v in value] if isinstance(value, list) else []
+
+
 class Context:
-    """One Zenoh session shared by the process's nodes.
+    """One Zenoh session shared by the process's nodes; a context manager.
 
     Args:
-        router: router endpoint(s); default from ``FLEETSLAM_ROUTER``.
-        listen: listen endpoint(s) of this process; default from ``FLEETSLAM_LISTEN``.
-        domain_id: ROS domain; default from ``ROS_DOMAIN_ID``.
-        namespace: default namespace of nodes; default from ``FLEETSLAM_AGENT``.
+        router: router endpoint(s), a comma-separated string or a list; default ``FLEETSLAM_ROUTER``.
+        listen: listen endpoint(s) of this process; default ``FLEETSLAM_LISTEN``.
+        domain_id: ROS domain; default ``ROS_DOMAIN_ID``.
+        namespace: default namespace of nodes; default ``FLEETSLAM_AGENT``.
         statistics: publish per-subscription statistics on /statistics (default: on unless
             ``FLEETSLAM_STATISTICS=0``).
-        router_timeout_s: how long to wait for the router before raising RouterUnreachableError; a negative
-            value skips the check (like ``ZENOH_ROUTER_CHECK_ATTEMPTS<0``).
-        environ: environment to read (default ``os.environ``).
+        router_timeout_s: how long to wait for the router before raising RouterUnreachableError (``math.inf``:
+            forever, negative: no check); default from ``ZENOH_ROUTER_CHECK_ATTEMPTS``, else 2 s.
+        environ: environment to read instead of ``os.environ`` (tests pass ``{}``).
+
+    Raises:
+        RouterUnreachableError: no router answered in time.
+        ConfigError: an environment variable or the session config file is invalid.
     """
 
     def __init__(
@@ -126,54 +162,67 @@ class Context:
         domain_id: int | None = None,
         namespace: str | None = None,
         statistics: bool | None = None,
-        router_timeout_s: float = 3.0,
+        router_timeout_s: float | None = None,
         environ: Mapping[str, str] | None = None,
     ) -> None:
         environ = dict(os.environ if environ is None else environ)
-        router_text = router if router is not None else environ.get("FLEETSLAM_ROUTER", DEFAULT_ROUTER)
-        listen_text = listen if listen is not None else environ.get("FLEETSLAM_LISTEN", DEFAULT_LISTEN)
-        self.router_endpoints = _split_endpoints(router_text)
-        self.listen_endpoints = _split_endpoints(listen_text)
+        from_file = bool(environ.get("ZENOH_SESSION_CONFIG_URI", "").strip())
+        if router is None and "FLEETSLAM_ROUTER" in environ:
+            router = environ["FLEETSLAM_ROUTER"]
+        if listen is None and "FLEETSLAM_LISTEN" in environ:
+            listen = environ["FLEETSLAM_LISTEN"]
+        if not from_file:  # a config file keeps its own endpoints unless they are given explicitly
+            router = DEFAULT_ROUTER if router is None else router
+            listen = DEFAULT_LISTEN if listen is None else listen
         self.domain_id = domain_id if domain_id is not None else domain_id_from_env(environ)
         self.namespace = normalize_namespace(namespace) if namespace is not None else namespace_from_env(environ)
         if statistics is None:
             statistics = environ.get("FLEETSLAM_STATISTICS", "1").strip().lower() not in ("0", "false", "off", "no")
         self.statistics_enabled = statistics
-        config = session_config(connect=self.router_endpoints, listen=self.listen_endpoints, environ=environ)
+        config = session_config(
+            connect=None if router is None else split_endpoints(router),
+            listen=None if listen is None else split_endpoints(listen),
+            environ=environ,
+        )
+        self.router_endpoints = endpoints_of(config, "connect/endpoints")
+        self.listen_endpoints = endpoints_of(config, "listen/endpoints")
         try:
             self.session = zenoh.open(config)
         except Exception as err:
-            raise RouterUnreachableError(self._unreachable_message(str(err))) from err
+            raise RouterUnreachableError(self._unreachable_message(f"cannot open the session: {err}")) from err
         self.zid = str(self.session.info.zid())
         self._ids = itertools.count()
         self._ids_lock = threading.Lock()
         self._nodes: list[Node] = []
         self._closed = threading.Event()
         self._graph: Graph | None = None
-        if router_timeout_s >= 0 and self.router_endpoints:
+        self._graph_lock = threading.Lock()
+        if router_timeout_s is None:
+            router_timeout_s = router_timeout_from_env(environ)
+        mode = config.get_json("mode").strip('"')
+        if router_timeout_s >= 0 and mode != "router":
             self._wait_for_router(router_timeout_s)
+        log.debug("context %s: connect %s, listen %s", self.zid, self.router_endpoints, self.listen_endpoints)
 
     def _unreachable_message(self, detail: str = "") -> str:
-        where = ", ".join(self.router_endpoints) or "(no endpoint)"
+        where = ", ".join(self.router_endpoints) or "(no connect endpoint configured)"
         suffix = f" ({detail})" if detail else ""
         return (
-            f"no Zenoh router at {where}{suffix}: start one with `fleetslam router` on that host, "
-            "or point FLEETSLAM_ROUTER at a running one"
+            f"no router at {where}{suffix}: start one with `fleetslam router` (on that host), "
+            "or set FLEETSLAM_ROUTER to a running one's endpoint"
         )
 
     def _wait_for_router(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
-        while True:
-            if list(self.session.info.routers_zid()):
-                return
+        while not list(self.session.info.routers_zid()):
             if time.monotonic() >= deadline:
                 self.session.close()
                 raise RouterUnreachableError(self._unreachable_message())
-            time.sleep(0.05)
+            time.sleep(0.02)
 
-    # -- ids and registry ----------------------------------------------------------------------------------
+    # -- ids, nodes, graph -----------------------------------------------------------------------------------
     def next_entity_id(self) -> int:
-        """Next id from the context's one counter (nodes and entities share it, as in rmw_zenoh)."""
+        """Next id from the context's one counter (nodes and entities share it, from 0, as in rmw_zenoh)."""
         with self._ids_lock:
             return next(self._ids)
 
@@ -185,13 +234,19 @@ class Context:
             self._nodes.remove(node)
 
     @property
+    def nodes(self) -> list[Node]:
+        """The live nodes of this context."""
+        return list(self._nodes)
+
+    @property
     def graph(self) -> Graph:
         """The graph of the running system, discovered from liveliness tokens (started on first use)."""
-        if self._graph is None:
-            from fleetslam.middleware.graph import Graph
+        with self._graph_lock:
+            if self._graph is None:
+                from fleetslam.middleware.graph import Graph
 
-            self._graph = Graph(self.session, self.domain_id)
-        return self._graph
+                self._graph = Graph(self.session, self.domain_id)
+            return self._graph
 
     @property
     def closed(self) -> bool:
@@ -199,11 +254,17 @@ class Context:
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
     def spin(self, timeout_s: float | None = None) -> None:
-        """Block until the context is closed, ``timeout_s`` passes, or Ctrl-C."""
-        self._closed.wait(timeout_s)
+        """Block until the context is closed, ``timeout_s`` passes, or Ctrl-C (which returns cleanly).
+
+        Callbacks do not need it (they run on the nodes' executor threads); it only keeps the main thread alive.
+        """
+        try:
+            self._closed.wait(timeout_s)
+        except KeyboardInterrupt:
+            log.info("interrupted")
 
     def close(self) -> None:
-        """Destroy every node (their tokens disappear from the graph) and close the session."""
+        """Destroy every node (their tokens disappear from the graph) and close the session; idempotent."""
         if self._closed.is_set():
             return
         for node in list(self._nodes):
@@ -213,7 +274,7 @@ class Context:
         self._closed.set()
         try:
             self.session.close()
-        except Exception as err:  # closing twice or after a transport error is harmless
+        except Exception as err:  # closing after a transport error is harmless
             log.debug("closing the Zenoh session: %s", err)
 
     def __enter__(self) -> Context:

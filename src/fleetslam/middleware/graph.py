@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import zenoh
 
 from fleetslam.errors import MessageError
-from fleetslam.middleware.wire import LIVELINESS_PREFIX, EntityKind, LivelinessToken
+from fleetslam.middleware.wire import LIVELINESS_PREFIX, EntityKind, LivelinessToken, QoSProfile
 
 log = logging.getLogger(__name__)
 
@@ -31,12 +31,28 @@ class EndpointInfo:
     topic_type: str
     type_hash: str
     gid: bytes
-    qos: object
+    qos: QoSProfile
     kind: EntityKind
+    zid: str = ""
+    """Zenoh id of the session (process) the entity lives in."""
 
     @property
     def node_fq_name(self) -> str:
         return f"{self.node_namespace.rstrip('/')}/{self.node_name}"
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    """A node of the graph: (zid, nid) identify it, several processes may use the same name."""
+
+    namespace: str
+    name: str
+    zid: str
+    nid: int
+
+    @property
+    def fq_name(self) -> str:
+        return f"{self.namespace.rstrip('/')}/{self.name}"
 
 
 class Graph:
@@ -62,8 +78,15 @@ class Graph:
             log.debug("graph subscriber undeclare: %s", err)
 
     def add_listener(self, listener: Callable[[str, LivelinessToken], None]) -> None:
-        """Call ``listener(event, token)`` ('put' or 'delete') on every change (on a Zenoh thread)."""
+        """Call ``listener(event, token)`` (event 'put' or 'delete') on every change, on a Zenoh thread.
+
+        Keep it short, or post the work to a node with :meth:`Node.call_soon`.
+        """
         self._listeners.append(listener)
+
+    def remove_listener(self, listener: Callable[[str, LivelinessToken], None]) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -90,6 +113,7 @@ class Graph:
 
     # -- queries -----------------------------------------------------------------------------------------------
     def tokens(self) -> list[LivelinessToken]:
+        """Every live token of the domain."""
         with self._lock:
             return list(self._tokens.values())
 
@@ -98,11 +122,19 @@ class Graph:
         with self._lock:
             return self._by_gid.get(gid)
 
+    def nodes(self) -> list[NodeInfo]:
+        """Every node, sorted by name then zid."""
+        found = [
+            NodeInfo(t.namespace, t.node_name, t.zid, t.nid) for t in self.tokens() if t.kind is EntityKind.NODE
+        ]
+        return sorted(found, key=lambda n: (n.fq_name, n.zid, n.nid))
+
     def node_names(self) -> list[tuple[str, str]]:
         """(namespace, name) of every node, sorted."""
         return sorted({(t.namespace, t.node_name) for t in self.tokens() if t.kind is EntityKind.NODE})
 
     def node_fq_names(self) -> list[str]:
+        """``/namespace/name`` of every node, sorted."""
         return [f"{ns.rstrip('/')}/{name}" for ns, name in self.node_names()]
 
     def _names_and_types(self, kinds: tuple[EntityKind, ...]) -> dict[str, list[str]]:
@@ -122,22 +154,30 @@ class Graph:
 
     def _endpoints(self, name: str, kind: EntityKind) -> list[EndpointInfo]:
         return [
-            EndpointInfo(t.node_name, t.namespace, t.type_name, t.type_hash, t.gid, t.qos, t.kind)
-            for t in self.tokens()
+            EndpointInfo(t.node_name, t.namespace, t.type_name, t.type_hash, t.gid, t.qos, t.kind, t.zid)
+            for t in sorted(self.tokens(), key=lambda t: (t.zid, t.nid, t.eid))
             if t.kind is kind and t.topic == name
         ]
 
     def publishers_info(self, topic: str) -> list[EndpointInfo]:
+        """Publishers of a fully qualified topic (as ``ros2 topic info -v``)."""
         return self._endpoints(topic, EntityKind.PUBLISHER)
 
     def subscriptions_info(self, topic: str) -> list[EndpointInfo]:
+        """Subscriptions of a fully qualified topic."""
         return self._endpoints(topic, EntityKind.SUBSCRIBER)
 
     def services_info(self, service: str) -> list[EndpointInfo]:
+        """Servers of a service."""
         return self._endpoints(service, EntityKind.SERVICE)
 
+    def clients_info(self, service: str) -> list[EndpointInfo]:
+        """Clients of a service."""
+        return self._endpoints(service, EntityKind.CLIENT)
+
     def node_entities(self, namespace: str, node_name: str) -> list[LivelinessToken]:
-        """Every entity token of one node."""
+        """Every entity token of the node(s) of this name."""
+        namespace = namespace or "/"
         return [
             t
             for t in self.tokens()

@@ -56,6 +56,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_MAX_PAYLOAD_BYTES = 256 * 1024 * 1024
 STATISTICS_TOPIC = "/statistics"
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 
 
 @dataclass(frozen=True)
@@ -206,11 +207,19 @@ class Publisher(_Entity):
         return self.name
 
     def publish(self, msg: object) -> None:
-        """Serialize (CDR) and publish a message."""
-        self.publish_raw(typesys.serialize(msg, self.type_name))
+        """Serialize (CDR) and publish a message; ``bytes`` are taken as already serialized CDR (with header)."""
+        if isinstance(msg, bytes | bytearray | memoryview):
+            self.publish_raw(bytes(msg))
+        else:
+            self.publish_raw(typesys.serialize(msg, self.type_name))
+
+    @property
+    def matched_subscriptions(self) -> int:
+        """How many subscriptions of this topic and type the graph knows (0 until discovery has seen them)."""
+        return sum(1 for i in self.node.context.graph.subscriptions_info(self.topic) if i.topic_type == self.type_name)
 
     def publish_raw(self, payload: bytes, *, source_timestamp_ns: int | None = None) -> None:
-        """Publish already serialized CDR bytes (with header)."""
+        """Publish already serialized CDR bytes (with header); the attachment gets the next sequence number."""
         if self._destroyed:
             raise MiddlewareError(f"publisher of {self.topic} was destroyed")
         with self._lock:
@@ -303,8 +312,18 @@ class Subscription(_Entity):
         return self.name
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a Zenoh thread: whatever arrives, nothing may escape from here.
         if self._destroyed:
             return
+        try:
+            self._receive(sample)
+        except Exception as err:
+            self.statistics.on_error(None)
+            self.node._error_log.warning(
+                f"{self.topic}:internal", "%s: dropped a sample: %s: %s", self.topic, type(err).__name__, err
+            )
+
+    def _receive(self, sample: zenoh.Sample) -> None:
         received = time.time_ns()
         errors = self.node._error_log
         attachment_bytes = sample.attachment
@@ -538,6 +557,7 @@ class Node:
         parameter_overrides: ``key=value`` overrides.
         ros_args: a command line with ``--ros-args`` sections (remaps, ``__ns``, ``__node``, ``-p``).
         statistics_period_s: window of the /statistics reports (0 disables them for this node).
+        use_sim_time: :meth:`now_ns` follows ``/clock`` (rosgraph_msgs/msg/Clock) instead of the wall clock.
     """
 
     def __init__(
@@ -552,6 +572,7 @@ class Node:
         parameter_overrides: Sequence[str] = (),
         ros_args: Sequence[str] | RosArgs | None = None,
         statistics_period_s: float = 1.0,
+        use_sim_time: bool = False,
     ) -> None:
         parsed = ros_args if isinstance(ros_args, RosArgs) else parse_ros_args(ros_args or [])
         self.context = context
@@ -586,6 +607,11 @@ class Node:
         context._register(self)
         if statistics_period_s > 0 and context.statistics_enabled:
             self._timers.append(Timer(self, statistics_period_s, self._publish_statistics))
+        self.use_sim_time = use_sim_time
+        self._sim_time_ns = 0
+        if use_sim_time:
+            self._clock = Subscription(self, CLOCK_TYPE, "/clock", self._on_clock, QoSProfile(depth=1))
+            self._entities.append(self._clock)
 
     def _load_parameters(self, model: type[ConfigModel] | None, path: str | Path | None, overrides: list[str]) -> Any:
         if model is None:
@@ -670,10 +696,12 @@ class Node:
         self._executor.post(callback)
 
     # -- time --------------------------------------------------------------------------------------------------
-    @staticmethod
-    def now_ns() -> int:
-        """Wall-clock time in ns since the epoch (the source timestamp of published samples)."""
-        return time.time_ns()
+    def now_ns(self) -> int:
+        """Wall-clock ns since the epoch; with ``use_sim_time`` the last /clock value (0 before the first)."""
+        return self._sim_time_ns if self.use_sim_time else time.time_ns()
+
+    def _on_clock(self, msg: Any) -> None:
+        self._sim_time_ns = typesys.ns_from_stamp(msg.clock)
 
     # -- statistics --------------------------------------------------------------------------------------------
     def _publish_statistics(self) -> None:

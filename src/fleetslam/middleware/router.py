@@ -1,4 +1,10 @@
-"""The fleet's discovery service: a Zenoh router (rmw_zenohd's role, the ROS master's in ROS 1)."""
+"""The fleet's discovery service: a Zenoh router (rmw_zenohd's role, the ROS master's in ROS 1).
+
+A session opened in ``router`` mode routes data and liveliness tokens between the peers that connect to it.
+Like ``rmw_zenohd`` it listens on ``tcp/[::]:7447`` by default, with multicast scouting off and gossip on;
+``ZENOH_ROUTER_CONFIG_URI`` replaces those defaults with a JSON5 file and ``ZENOH_CONFIG_OVERRIDE`` applies on
+top. Explicit ``listen``/``connect`` endpoints always win. ``ROS_DOMAIN_ID`` does not matter to a router.
+"""
 
 from __future__ import annotations
 
@@ -11,50 +17,68 @@ from typing import Any
 import zenoh
 
 from fleetslam.errors import MiddlewareError
-from fleetslam.middleware.context import apply_config_overrides
+from fleetslam.middleware.context import apply_config_overrides, endpoints_of, load_config_file
 
 log = logging.getLogger(__name__)
 
 DEFAULT_ROUTER_LISTEN = ("tcp/[::]:7447",)
 
 
-class Router:
-    """A Zenoh router in this process: listens on ``listen``, multicast scouting off, gossip on.
+def router_config(
+    listen: Sequence[str] | None = DEFAULT_ROUTER_LISTEN,
+    connect: Sequence[str] | None = (),
+    environ: Mapping[str, str] | None = None,
+) -> zenoh.Config:
+    """rmw_zenohd's config (or ``ZENOH_ROUTER_CONFIG_URI``'s file) with these endpoints and the overrides."""
+    environ = os.environ if environ is None else environ
+    uri = environ.get("ZENOH_ROUTER_CONFIG_URI", "").strip()
+    if uri:
+        config = load_config_file(uri, "ZENOH_ROUTER_CONFIG_URI")
+    else:
+        config = zenoh.Config()
+        config.insert_json5("mode", '"router"')
+        config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("scouting/gossip/enabled", "true")
+        config.insert_json5("timestamping/enabled", "true")
+    if listen is not None:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect is not None:
+        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    overrides = environ.get("ZENOH_CONFIG_OVERRIDE", "")
+    if overrides:
+        apply_config_overrides(config, overrides)
+    return config
 
-    ``ZENOH_ROUTER_CONFIG_URI`` replaces the defaults with a file; ``ZENOH_CONFIG_OVERRIDE`` applies on top.
+
+class Router:
+    """A Zenoh router running in this process until :meth:`close`; a context manager.
+
+    Args:
+        listen: endpoints to listen on (``None`` with a config file: the file's).
+        connect: other routers to connect to.
+        environ: environment to read instead of ``os.environ``.
+
+    Raises:
+        MiddlewareError: the router cannot start (e.g. the port is taken).
+        ConfigError: the config file is invalid.
     """
 
     def __init__(
         self,
-        listen: Sequence[str] = DEFAULT_ROUTER_LISTEN,
+        listen: Sequence[str] | None = DEFAULT_ROUTER_LISTEN,
         *,
         connect: Sequence[str] = (),
         environ: Mapping[str, str] | None = None,
     ) -> None:
-        environ = os.environ if environ is None else environ
-        uri = environ.get("ZENOH_ROUTER_CONFIG_URI", "").strip()
-        try:
-            if uri:
-                config = zenoh.Config.from_file(uri)
-            else:
-                config = zenoh.Config()
-                config.insert_json5("mode", '"router"')
-                config.insert_json5("scouting/multicast/enabled", "false")
-                config.insert_json5("scouting/gossip/enabled", "true")
-                config.insert_json5("timestamping/enabled", "true")
-            config.insert_json5("listen/endpoints", json.dumps(list(listen)))
-            config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        except Exception as err:
-            raise MiddlewareError(f"router configuration (listen {list(listen)}): {err}") from err
-        overrides = environ.get("ZENOH_CONFIG_OVERRIDE", "")
-        if overrides:
-            apply_config_overrides(config, overrides)
+        config = router_config(list(listen) if listen is not None else None, list(connect), environ)
         try:
             self.session = zenoh.open(config)
         except Exception as err:
-            raise MiddlewareError(f"cannot start the router listening on {', '.join(listen)}: {err}") from err
-        self.listen = list(listen)
+            where = ", ".join(listen) if listen else "the configured endpoints"
+            raise MiddlewareError(f"cannot start the router listening on {where}: {err}") from err
         self.zid = str(self.session.info.zid())
+        self.listen = endpoints_of(config, "listen/endpoints")
+        self._closed = False
         log.info("router %s listening on %s", self.zid, ", ".join(self.listen))
 
     def peers(self) -> list[str]:
@@ -62,7 +86,12 @@ class Router:
         return [str(z) for z in self.session.info.peers_zid()]
 
     def close(self) -> None:
+        """Stop routing; connected peers lose each other unless they are also directly connected."""
+        if self._closed:
+            return
+        self._closed = True
         self.session.close()
+        log.info("router %s stopped", self.zid)
 
     def __enter__(self) -> Router:
         return self

@@ -29,6 +29,7 @@ class StatsRow:
     age_max_ms: float
     period_mean_ms: float
     period_std_ms: float
+    period_max_ms: float
     stamp_ns: int
 
     def as_dict(self) -> dict[str, Any]:
@@ -57,6 +58,7 @@ def row_from_message(msg: Any) -> StatsRow:
         age_max_ms=ns_from_stamp(msg.stamp_age_max) / 1e6,
         period_mean_ms=ns_from_stamp(msg.period_mean) / 1e6,
         period_std_ms=ns_from_stamp(msg.period_stddev) / 1e6,
+        period_max_ms=ns_from_stamp(msg.period_max) / 1e6,
         stamp_ns=stop,
     )
 
