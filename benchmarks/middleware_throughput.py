@@ -1,0 +1,336 @@
+"""Middleware throughput and latency across two processes on loopback: fleetslam vs raw Zenoh vs rclpy (Fast DDS).
+
+Prints one JSON line. For each payload (1 MB sensor_msgs/Image, 64-byte std_msgs/String) and each peer:
+- throughput: a publisher process sends as fast as it can (reliable, blocking when congested) for a few
+  seconds; the subscriber in this process counts what it receives in the steady middle of the run;
+- latency: the publisher sends at a fixed rate, stamping the send time before serialization; the subscriber
+  records receive − send (same machine, same clock), p50 and p99.
+rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy), because
+its pip wheels re-execute the interpreter at import. Targets: 1 MB ≥ 0.8× raw Zenoh and ≥ 5× rclpy;
+64 B ≥ 0.5× raw Zenoh and ≥ 10× rclpy.
+
+    python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import socket
+import struct
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PAYLOADS = {"image_1mb": 1 << 20, "string_64b": 64}
+RCLPY_VENV = Path.home() / ".cache" / "fleetslam" / "bench-rclpy"
+RCLPY_PACKAGES = ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-rmw-fastrtps-cpp"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# -- messages --------------------------------------------------------------------------------------------------
+def make_message(kind: str) -> tuple[str, Any]:
+    from fleetslam.middleware.typesys import get_type, header
+
+    if kind == "image_1mb":
+        image = get_type("sensor_msgs/msg/Image")
+        width, height = 512, 512  # rgba8: 512*512*4 = 1 MiB
+        data = np.random.default_rng(0).integers(0, 255, width * height * 4, dtype=np.uint8)
+        msg = image(
+            header=header("camera", 0), height=height, width=width, encoding="rgba8", is_bigendian=0,
+            step=width * 4, data=data,
+        )  # fmt: skip
+        return "sensor_msgs/msg/Image", msg
+    string = get_type("std_msgs/msg/String")
+    return "std_msgs/msg/String", string(data="x" * (PAYLOADS[kind] - 8))
+
+
+# -- publisher roles (run as subprocesses of this script) ------------------------------------------------------
+def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
+    from fleetslam.middleware.typesys import serialize
+
+    type_name, msg = make_message(kind)
+    topic = f"/bench/{kind}"
+    deadline = time.monotonic() + duration
+    period = 1.0 / rate if mode == "latency" else 0.0
+    next_time = time.monotonic()
+    if impl == "fleetslam":
+        from fleetslam.middleware import Context, Node, QoSProfile
+
+        with Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False) as ctx:
+            node = Node("bench_pub", context=ctx, statistics_period_s=0)
+            qos = QoSProfile(history="keep_all") if mode == "throughput" else QoSProfile(depth=100)
+            publisher = node.create_publisher(type_name, topic, qos)
+            time.sleep(1.0)
+            while time.monotonic() < deadline:
+                t0 = time.time_ns()
+                publisher.publish_raw(serialize(msg, type_name), source_timestamp_ns=t0)
+                if period:
+                    next_time += period
+                    time.sleep(max(0.0, next_time - time.monotonic()))
+            time.sleep(0.5)
+        return
+    import zenoh
+
+    from fleetslam.middleware.wire import topic_key
+
+    config = zenoh.Config()
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    key = topic_key(0, topic, type_name)
+    with zenoh.open(config) as session:
+        congestion = zenoh.CongestionControl.BLOCK if mode == "throughput" else zenoh.CongestionControl.DROP
+        publisher = session.declare_publisher(key, congestion_control=congestion)
+        time.sleep(1.0)
+        # Raw Zenoh carries the same CDR bytes; the send time travels in an 8-byte attachment.
+        payload = serialize(msg, type_name)
+        while time.monotonic() < deadline:
+            publisher.put(payload, attachment=struct.pack("<q", time.time_ns()))
+            if period:
+                next_time += period
+                time.sleep(max(0.0, next_time - time.monotonic()))
+        time.sleep(0.5)
+
+
+# -- subscriber side (this process) -----------------------------------------------------------------------------
+class Receiver:
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.latencies_ns: list[int] = []
+        self.lock = threading.Lock()
+
+    def record(self, send_ns: int) -> None:
+        now = time.time_ns()
+        with self.lock:
+            self.times.append(time.monotonic())
+            self.latencies_ns.append(now - send_ns)
+
+
+def steady_rate(times: list[float]) -> float:
+    if len(times) < 10:
+        return float(len(times))
+    start, stop = times[0], times[-1]
+    lo, hi = start + 0.2 * (stop - start), start + 0.9 * (stop - start)
+    inside = [t for t in times if lo <= t <= hi]
+    return len(inside) / (hi - lo) if hi > lo else 0.0
+
+
+def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: float) -> Receiver:
+    from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile, Router
+    from fleetslam.middleware.typesys import get_type, serialize
+    from fleetslam.middleware.wire import topic_key
+
+    type_name, _ = make_message(kind)
+    get_type(type_name)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    receiver = Receiver()
+    with Router([endpoint]):
+        if impl == "fleetslam":
+            ctx = Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False)
+            node = Node("bench_sub", context=ctx, statistics_period_s=0)
+
+            def on_message(msg: Any, info: MessageInfo) -> None:
+                receiver.record(info.source_timestamp_ns)
+
+            node.create_subscription(type_name, f"/bench/{kind}", on_message, QoSProfile(depth=1000))
+            closer: Any = ctx
+        else:
+            import zenoh
+
+            config = zenoh.Config()
+            config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+            config.insert_json5("scouting/multicast/enabled", "false")
+            session = zenoh.open(config)
+
+            def on_sample(sample: Any) -> None:
+                payload = sample.payload.to_bytes()  # the same copy out of Zenoh that fleetslam makes
+                del payload
+                receiver.record(struct.unpack("<q", sample.attachment.to_bytes())[0])
+
+            session.declare_subscriber(topic_key(0, f"/bench/{kind}", type_name), on_sample)
+            closer = session
+        del serialize
+        proc = subprocess.Popen(
+            [sys.executable, __file__, "--role", "pub", "--impl", impl, "--kind", kind, "--endpoint", endpoint,
+             "--mode", mode, "--duration", str(duration), "--rate", str(rate)],
+        )  # fmt: skip
+        proc.wait(timeout=duration + 30)
+        time.sleep(0.3)
+        closer.close()
+    return receiver
+
+
+# -- rclpy peer -------------------------------------------------------------------------------------------------
+RCLPY_SCRIPT = textwrap.dedent(
+    """
+    import sys, time, json, threading
+    import numpy as np
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import String
+    role, kind, mode, duration, rate = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), float(sys.argv[5])
+    rclpy.init()
+    node = Node("bench_" + role)
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+    if kind == "image_1mb":
+        msg_type = Image
+    else:
+        msg_type = String
+    if role == "pub":
+        pub = node.create_publisher(msg_type, "/bench/" + kind, qos)
+        if kind == "image_1mb":
+            msg = Image(height=512, width=512, encoding="rgba8", step=2048)
+            msg.data = np.random.default_rng(0).integers(0, 255, 512 * 512 * 4, dtype=np.uint8).tobytes()
+        time.sleep(2.0)
+        deadline = time.monotonic() + duration
+        period = 1.0 / rate if mode == "latency" else 0.0
+        nxt = time.monotonic()
+        while time.monotonic() < deadline:
+            t = time.time_ns()
+            if kind == "image_1mb":
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
+            else:
+                msg = String(data=str(t).ljust(56, "x"))
+            pub.publish(msg)
+            if period:
+                nxt += period
+                time.sleep(max(0.0, nxt - time.monotonic()))
+        time.sleep(0.5)
+    else:
+        times, lat = [], []
+        def cb(m):
+            now = time.time_ns()
+            sent = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec if kind == "image_1mb" else int(m.data[:19])
+            times.append(time.monotonic()); lat.append(now - sent)
+        node.create_subscription(msg_type, "/bench/" + kind, cb, qos)
+        end = time.monotonic() + duration + 4.0
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        print(json.dumps({"times": times, "lat": lat}))
+    node.destroy_node()
+    rclpy.shutdown()
+    """
+)
+
+
+def ensure_rclpy_venv() -> tuple[Path | None, str]:
+    python = RCLPY_VENV / "bin" / "python"
+    if not python.exists():
+        try:
+            subprocess.run([sys.executable, "-m", "venv", str(RCLPY_VENV)], check=True, capture_output=True)
+            subprocess.run(
+                [str(python), "-m", "pip", "install", "-q", *RCLPY_PACKAGES],
+                check=True,
+                capture_output=True,
+                timeout=900,
+            )
+        except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as err:
+            return None, f"could not create the rclpy environment: {err}"
+    check = subprocess.run([str(python), "-c", "import rclpy"], capture_output=True, text=True, timeout=120)
+    if check.returncode != 0:
+        return None, f"rclpy does not import: {check.stderr.strip()[-300:]}"
+    return python, ""
+
+
+def measure_rclpy(python: Path, kind: str, mode: str, duration: float, rate: float) -> Receiver:
+    script = Path(os.environ.get("TMPDIR", "/tmp")) / "fleetslam_bench_rclpy.py"
+    script.write_text(RCLPY_SCRIPT)
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp", "ROS_LOCALHOST_ONLY": "1", "ROS_DOMAIN_ID": "77"}
+    sub = subprocess.Popen(
+        [str(python), str(script), "sub", kind, mode, str(duration), str(rate)],
+        env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(1.0)
+    pub = subprocess.run(
+        [str(python), str(script), "pub", kind, mode, str(duration), str(rate)], env=env, timeout=duration + 60
+    )
+    del pub
+    out, _ = sub.communicate(timeout=duration + 60)
+    data = json.loads(out.strip().splitlines()[-1])
+    receiver = Receiver()
+    receiver.times, receiver.latencies_ns = data["times"], data["lat"]
+    return receiver
+
+
+# -- main -------------------------------------------------------------------------------------------------------
+def summarize(throughput: Receiver, latency: Receiver) -> dict[str, Any]:
+    lat_ms = np.asarray(latency.latencies_ns, dtype=np.float64) / 1e6
+    return {
+        "msgs_per_s": round(steady_rate(throughput.times), 1),
+        "latency_p50_ms": round(float(np.percentile(lat_ms, 50)), 3) if lat_ms.size else None,
+        "latency_p99_ms": round(float(np.percentile(lat_ms, 99)), 3) if lat_ms.size else None,
+        "latency_samples": int(lat_ms.size),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--role", default="main", choices=["main", "pub"])
+    parser.add_argument("--impl", default="fleetslam")
+    parser.add_argument("--kind", default="image_1mb")
+    parser.add_argument("--endpoint", default="")
+    parser.add_argument("--mode", default="throughput")
+    parser.add_argument("--duration", type=float, default=3.0)
+    parser.add_argument("--rate", type=float, default=100.0)
+    parser.add_argument("--no-rclpy", action="store_true", help="skip the rclpy peer")
+    args = parser.parse_args()
+    if args.role == "pub":
+        run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate)
+        return
+
+    results: dict[str, Any] = {
+        "benchmark": "middleware_throughput",
+        "machine": f"{platform.machine()} {os.cpu_count()} cores",
+        "duration_s": args.duration,
+    }
+    rclpy_python, rclpy_reason = (None, "skipped (--no-rclpy)") if args.no_rclpy else ensure_rclpy_venv()
+    for kind in PAYLOADS:
+        rate = 50.0 if kind == "image_1mb" else 200.0
+        entry: dict[str, Any] = {}
+        for impl in ("fleetslam", "zenoh"):
+            print(f"[bench] {kind} {impl} ...", file=sys.stderr, flush=True)
+            entry[impl] = summarize(
+                measure_in_process(impl, kind, "throughput", args.duration, rate),
+                measure_in_process(impl, kind, "latency", min(args.duration, 2.0), rate),
+            )
+        if rclpy_python is not None:
+            print(f"[bench] {kind} rclpy ...", file=sys.stderr, flush=True)
+            entry["rclpy"] = summarize(
+                measure_rclpy(rclpy_python, kind, "throughput", args.duration, rate),
+                measure_rclpy(rclpy_python, kind, "latency", min(args.duration, 2.0), rate),
+            )
+        else:
+            entry["rclpy"] = {"msgs_per_s": None, "reason": rclpy_reason}
+        ours = entry["fleetslam"]["msgs_per_s"]
+        entry["ratio_vs_zenoh"] = (
+            round(ours / entry["zenoh"]["msgs_per_s"], 3) if entry["zenoh"]["msgs_per_s"] else None
+        )
+        rclpy_rate = entry["rclpy"].get("msgs_per_s")
+        entry["ratio_vs_rclpy"] = round(ours / rclpy_rate, 2) if rclpy_rate else None
+        target_zenoh, target_rclpy = (0.8, 5.0) if kind == "image_1mb" else (0.5, 10.0)
+        entry["targets"] = {"vs_zenoh": target_zenoh, "vs_rclpy": target_rclpy}
+        results[kind] = entry
+    print(json.dumps(results))
+
+
+if __name__ == "__main__":
+    main()
