@@ -217,7 +217,10 @@ RCLPY_SCRIPT = textwrap.dedent(
         times, lat = [], []
         def cb(m):
             now = time.time_ns()
-            sent = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec if kind == "image_1mb" else int(m.data[:19])
+            if kind == "image_1mb":
+                sent = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            else:
+                sent = int(m.data[:19])
             times.append(time.monotonic()); lat.append(now - sent)
         node.create_subscription(msg_type, "/bench/" + kind, cb, qos)
         end = time.monotonic() + duration + 4.0
