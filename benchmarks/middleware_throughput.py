@@ -208,7 +208,11 @@ RCLPY_SCRIPT = textwrap.dedent(
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
             else:
                 msg = String(data=str(t).ljust(56, "x"))
-            pub.publish(msg)
+            try:
+                pub.publish(msg)
+            except Exception:  # Fast DDS refuses to publish when its history is full: back off, go on
+                time.sleep(0.001)
+                continue
             if period:
                 nxt += period
                 time.sleep(max(0.0, nxt - time.monotonic()))
