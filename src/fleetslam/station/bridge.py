@@ -1,0 +1,268 @@
+"""The console's node: discovers agents, subscribes to what the operator sees, publishes what the operator does.
+
+Middleware callbacks run on the node's executor thread; every browser-bound message goes through ``emit``
+(thread-safe, supplied by the server). Latest state per agent is kept so a browser that connects later gets a
+snapshot at once.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware.stats_table import StatsTable
+from fleetslam.middleware.typesys import get_type
+from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, pointcloud2_xyz, yaw_from_quaternion
+
+log = logging.getLogger(__name__)
+
+Emit = Callable[[dict[str, Any], str | None], None]
+"""emit(message, agent_filter): send to every browser (or only those watching ``agent_filter``'s camera)."""
+
+FLEET_AGENT = "fleet"
+
+
+@dataclass
+class AgentView:
+    """What the console keeps about one agent."""
+
+    name: str
+    voxels: VoxelDiff
+    poses: dict[str, dict[str, float]] = field(default_factory=dict)
+    paths: dict[str, list[list[float]]] = field(default_factory=dict)
+    keyframes: list[list[float]] = field(default_factory=list)
+    last_image: dict[str, float] = field(default_factory=dict)
+    image_seq: int = 0
+
+
+class StationBridge:
+    """Bridges the fleet and the browsers."""
+
+    def __init__(
+        self,
+        context: Context,
+        emit: Emit,
+        *,
+        limits: TeleopLimits | None = None,
+        voxel_resolution: float = 0.05,
+        image_rate_hz: float = 5.0,
+        wanted_cameras: Callable[[], set[tuple[str, str]]] = lambda: set(),
+    ) -> None:
+        self.node = Node("station", context=context, namespace="/")
+        self.emit = emit
+        self.gate = TeleopGate(limits or TeleopLimits())
+        self.voxel_resolution = voxel_resolution
+        self.image_period = 1.0 / image_rate_hz
+        self.wanted_cameras = wanted_cameras
+        self.agents: dict[str, AgentView] = {}
+        self.stats = StatsTable()
+        self._lock = threading.Lock()
+        self._cmd_publishers: dict[str, Any] = {}
+        self._estop_clients: dict[str, Any] = {}
+        self._twist = get_type("geometry_msgs/msg/Twist")
+        self._vector = get_type("geometry_msgs/msg/Vector3")
+        self.node.create_subscription(
+            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000)
+        )
+        self._add_agent(FLEET_AGENT, fleet=True)
+        self.node.create_timer(1.0, self._discover)
+        self.node.create_timer(1.0, self._send_stats)
+        self.node.call_soon(self._discover)
+
+    # -- discovery ---------------------------------------------------------------------------------------------
+    def _discover(self) -> None:
+        graph = self.node.context.graph
+        found: set[str] = set()
+        for topic in graph.topic_names_and_types():
+            parts = topic.strip("/").split("/")
+            if len(parts) >= 2 and parts[0] != FLEET_AGENT and parts[1] in ("cmd_vel", "odom", "camera", "map"):
+                found.add(parts[0])
+        new = sorted(found - self.agents.keys())
+        for name in new:
+            self._add_agent(name)
+        if new:
+            self.emit({"type": "agents", "agents": self.agent_names()}, None)
+
+    def agent_names(self) -> list[str]:
+        return sorted(a for a in self.agents if a != FLEET_AGENT)
+
+    def _add_agent(self, name: str, fleet: bool = False) -> None:
+        view = AgentView(name, VoxelDiff(self.voxel_resolution))
+        self.agents[name] = view
+        ns = f"/{name}"
+        sub = self.node.create_subscription
+        sub("sensor_msgs/msg/PointCloud2", f"{ns}/map/occupied", lambda m: self._on_cloud(view, m), QoSProfile(depth=1))
+        if fleet:
+            return
+        for source, topic in (("odom", "odom"), ("slam", "slam/odom"), ("truth", "ground_truth/odom")):
+            sub("nav_msgs/msg/Odometry", f"{ns}/{topic}", self._odom_callback(view, source), QoSProfile(depth=1))
+        sub("nav_msgs/msg/Path", f"{ns}/path", lambda m: self._on_path(view, "slam", m), QoSProfile(depth=1))
+        sub("fleetslam_msgs/msg/KeyframeGraph", f"{ns}/graph", lambda m: self._on_graph(view, m), QoSProfile(depth=1))
+        for kind, topic in (("rgb", "camera/rgb/image_raw"), ("depth", "camera/depth/image_raw")):
+            sub(
+                "sensor_msgs/msg/Image",
+                f"{ns}/{topic}",
+                self._image_callback(view, kind),
+                QoSProfile(depth=1, reliability="best_effort"),
+            )
+        self._cmd_publishers[name] = self.node.create_publisher("geometry_msgs/msg/Twist", f"{ns}/cmd_vel")
+        self._estop_clients[name] = self.node.create_client("std_srvs/srv/SetBool", f"{ns}/e_stop")
+
+    # -- subscriptions -----------------------------------------------------------------------------------------
+    def _odom_callback(self, view: AgentView, source: str) -> Callable[[Any], None]:
+        return lambda msg: self._on_odom(view, source, msg)
+
+    def _image_callback(self, view: AgentView, kind: str) -> Callable[[Any], None]:
+        return lambda msg: self._on_image(view, kind, msg)
+
+    def _on_cloud(self, view: AgentView, msg: Any) -> None:
+        points = pointcloud2_xyz(msg)
+        added, removed = view.voxels.update(points)
+        if len(added) or len(removed):
+            self.emit(
+                {
+                    "type": "voxels",
+                    "agent": view.name,
+                    "size": self.voxel_resolution,
+                    "add": np.round(added, 3).tolist(),
+                    "remove": np.round(removed, 3).tolist(),
+                    "total": len(view.voxels),
+                },
+                None,
+            )
+
+    def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        pose = {"x": p.x, "y": p.y, "z": p.z, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w)}
+        view.poses[source] = pose
+        path = view.paths.setdefault(source, [])
+        if not path or (path[-1][0] - p.x) ** 2 + (path[-1][1] - p.y) ** 2 > 0.0025:
+            path.append([round(p.x, 3), round(p.y, 3), round(p.z, 3)])
+            del path[:-5000]
+        self.emit({"type": "pose", "agent": view.name, "source": source, **pose}, None)
+
+    def _on_path(self, view: AgentView, source: str, msg: Any) -> None:
+        points = [[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in msg.poses]
+        view.paths[source] = points
+        self.emit({"type": "path", "agent": view.name, "source": source, "points": points}, None)
+
+    def _on_graph(self, view: AgentView, msg: Any) -> None:
+        view.keyframes = [
+            [p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z,
+             p.orientation.w]
+            for p in msg.poses
+        ]  # fmt: skip
+        self.emit({"type": "keyframes", "agent": view.name, "poses": view.keyframes}, None)
+
+    def _on_image(self, view: AgentView, kind: str, msg: Any) -> None:
+        if (view.name, kind) not in self.wanted_cameras():
+            return
+        now = time.monotonic()
+        if now - view.last_image.get(kind, 0.0) < self.image_period:
+            return
+        view.last_image[kind] = now
+        try:
+            mime, data = encode_image(msg, kind)
+        except ValueError as err:
+            log.warning("%s %s image: %s", view.name, kind, err)
+            return
+        view.image_seq += 1
+        self.emit(
+            {"type": "image", "agent": view.name, "kind": kind, "mime": mime, "seq": view.image_seq,
+             "data": base64.b64encode(data).decode()},
+            view.name,
+        )  # fmt: skip
+
+    def _on_statistics(self, msg: Any) -> None:
+        with self._lock:
+            self.stats.update(msg)
+
+    def _send_stats(self) -> None:
+        with self._lock:
+            rows = [r.as_dict() for r in self.stats.rows(now_ns=time.time_ns())]
+        self.emit({"type": "stats", "rows": rows}, None)
+
+    # -- operator actions (from the server's thread) -------------------------------------------------------
+    def tick_teleop(self, now: float) -> dict[str, tuple[float, float]]:
+        """Publish the commands the gate releases now."""
+        commands = self.gate.tick(now)
+        for agent, (v, w) in commands.items():
+            publisher = self._cmd_publishers.get(agent)
+            if publisher is not None:
+                publisher.publish(
+                    self._twist(linear=self._vector(x=v, y=0.0, z=0.0), angular=self._vector(x=0.0, y=0.0, z=w))
+                )
+        return commands
+
+    def estop(self, agent: str, engage: bool, timeout_s: float = 3.0) -> tuple[bool, str]:
+        """Engage or release an agent's latched e-stop through its `e_stop` service."""
+        client = self._estop_clients.get(agent)
+        if client is None:
+            return False, f"unknown agent {agent}"
+        request = get_type("std_srvs/srv/SetBool_Request")(data=engage)
+        try:
+            response = client.call(request, timeout=timeout_s)
+        except Exception as err:
+            return False, str(err)
+        return bool(response.success), str(response.message)
+
+    def snapshot(self) -> list[dict[str, Any]]:
+        """Messages that bring a new browser up to date."""
+        out: list[dict[str, Any]] = [{"type": "agents", "agents": self.agent_names()}]
+        for view in list(self.agents.values()):
+            voxels = view.voxels.snapshot()
+            if len(voxels):
+                out.append(
+                    {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": voxels.tolist(),
+                     "remove": [], "total": len(voxels), "reset": True}
+                )  # fmt: skip
+            for source, pose in view.poses.items():
+                out.append({"type": "pose", "agent": view.name, "source": source, **pose})
+            for source, points in view.paths.items():
+                out.append({"type": "path", "agent": view.name, "source": source, "points": points})
+            if view.keyframes:
+                out.append({"type": "keyframes", "agent": view.name, "poses": view.keyframes})
+        return out
+
+    def close(self) -> None:
+        self.node.destroy()
+
+
+def encode_image(msg: Any, kind: str) -> tuple[str, bytes]:
+    """JPEG of an rgb8/bgr8/mono8 image, or a colour-mapped JPEG of a 32FC1 (m) / 16UC1 (mm) depth image."""
+    import cv2
+
+    height, width, encoding = int(msg.height), int(msg.width), msg.encoding
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    image: Any
+    if encoding in ("rgb8", "bgr8"):
+        image = raw[: height * width * 3].reshape(height, width, 3)
+        if encoding == "rgb8":
+            image = image[:, :, ::-1]
+    elif encoding == "mono8":
+        image = raw[: height * width].reshape(height, width)
+    elif encoding in ("32FC1", "16UC1"):
+        if encoding == "32FC1":
+            depth = raw[: height * width * 4].view(np.float32).reshape(height, width)
+        else:
+            depth = raw[: height * width * 2].view(np.uint16).reshape(height, width).astype(np.float32) / 1000.0
+        valid = np.isfinite(depth) & (depth > 0)
+        scaled = np.zeros((height, width), dtype=np.uint8)
+        scaled[valid] = np.clip(255.0 * (1.0 - np.clip(depth[valid], 0.0, 5.0) / 5.0), 1, 255).astype(np.uint8)
+        image = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
+        image[~valid] = 0
+    else:
+        raise ValueError(f"unsupported image encoding {encoding!r}")
+    ok, buffer = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    del kind
+    return "image/jpeg", buffer.tobytes()

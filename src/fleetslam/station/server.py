@@ -1,0 +1,237 @@
+"""The operator console's web server: static front end, WebSocket to browsers, teleop stream at a fixed rate.
+
+Runs an asyncio loop (aiohttp) in its own thread; the bridge node's callbacks hand messages to it through
+``call_soon_threadsafe``. JavaScript dependencies are installed from the npm registry at setup
+(`scripts/setup-frontend`) and served from ``static/vendor`` — the page works offline.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fleetslam.errors import MissingExtraError
+from fleetslam.middleware import Context
+from fleetslam.station.bridge import StationBridge
+from fleetslam.station.protocol import TeleopLimits
+
+log = logging.getLogger(__name__)
+
+STATIC_DIR = Path(__file__).parent / "static"
+VENDOR_FILES = ("three.module.js", "OrbitControls.js")
+
+
+@dataclass
+class _Client:
+    socket: Any
+    agent: str | None = None
+    camera: str = "rgb"
+    driving: set[str] = field(default_factory=set)
+
+
+class StationServer:
+    """HTTP + WebSocket server of the console.
+
+    Args:
+        context: middleware context (the bridge node joins the fleet through it).
+        host, port: where to listen (port 0 picks a free one; see ``self.port`` after ``start``).
+        limits: speed limits and command timeout for teleoperation.
+        teleop_rate_hz: rate of the command stream to the robots.
+    """
+
+    def __init__(
+        self,
+        context: Context,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        limits: TeleopLimits | None = None,
+        teleop_rate_hz: float = 20.0,
+    ) -> None:
+        try:
+            import aiohttp  # noqa: F401
+        except ImportError as err:
+            raise MissingExtraError("aiohttp", "station") from err
+        self.host, self.port = host, port
+        self.limits = limits or TeleopLimits()
+        self.teleop_period = 1.0 / teleop_rate_hz
+        self._context = context
+        self._clients: dict[int, _Client] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._stop: asyncio.Event | None = None
+        self.bridge: StationBridge | None = None
+        self._error: BaseException | None = None
+        self._pending: set[asyncio.Future[None]] = set()
+
+    # -- lifecycle -------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start serving in a background thread; returns once listening."""
+        missing = [f for f in VENDOR_FILES if not (STATIC_DIR / "vendor" / f).is_file()]
+        if missing:
+            log.warning("front-end dependencies missing (%s): run scripts/setup-frontend", ", ".join(missing))
+        self._thread = threading.Thread(target=self._run, name="station", daemon=True)
+        self._thread.start()
+        self._ready.wait(20)
+        if self._error is not None:
+            raise self._error
+        self.bridge = StationBridge(
+            self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
+        )
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def stop(self) -> None:
+        if self.bridge is not None:
+            self.bridge.close()
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        if self._thread is not None:
+            self._thread.join(10)
+
+    def __enter__(self) -> StationServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._serve())
+        except BaseException as err:  # surfaced to start()
+            self._error = err
+            self._ready.set()
+
+    async def _serve(self) -> None:
+        from aiohttp import web
+
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        app = web.Application()
+        app.router.add_get("/", self._index)
+        app.router.add_get("/ws", self._websocket)
+        app.router.add_static("/static/", STATIC_DIR, show_index=False)
+        runner = web.AppRunner(app)
+        await runner.setup()
+        site = web.TCPSite(runner, self.host, self.port)
+        await site.start()
+        sockets = getattr(site._server, "sockets", None) or []
+        if sockets:
+            self.port = sockets[0].getsockname()[1]
+        log.info("operator console at %s", self.url)
+        self._ready.set()
+        teleop = asyncio.create_task(self._teleop_loop())
+        await self._stop.wait()
+        teleop.cancel()
+        for client in list(self._clients.values()):
+            await client.socket.close()
+        await runner.cleanup()
+
+    # -- HTTP and WebSocket --------------------------------------------------------------------------------
+    async def _index(self, request: Any) -> Any:
+        from aiohttp import web
+
+        return web.FileResponse(STATIC_DIR / "index.html")
+
+    async def _websocket(self, request: Any) -> Any:
+        from aiohttp import WSMsgType, web
+
+        socket = web.WebSocketResponse(heartbeat=5.0, max_msg_size=16 * 1024 * 1024)
+        await socket.prepare(request)
+        client = _Client(socket)
+        self._clients[id(socket)] = client
+        limits = {"max_linear": self.limits.max_linear, "max_angular": self.limits.max_angular}
+        agents = self.bridge.agent_names() if self.bridge else []
+        await socket.send_str(json.dumps({"type": "hello", "agents": agents, "limits": limits}))
+        if self.bridge is not None:
+            for message in self.bridge.snapshot():
+                await socket.send_str(json.dumps(message))
+        try:
+            async for frame in socket:
+                if frame.type == WSMsgType.TEXT:
+                    await self._on_browser_message(client, frame.data)
+                elif frame.type == WSMsgType.ERROR:
+                    break
+        finally:
+            self._clients.pop(id(socket), None)
+            if self.bridge is not None:
+                for agent in client.driving:
+                    self.bridge.gate.release(agent)
+        return socket
+
+    async def _on_browser_message(self, client: _Client, text: str) -> None:
+        try:
+            message = json.loads(text)
+            kind = message["type"]
+        except (ValueError, KeyError, TypeError):
+            log.warning("ignoring a malformed browser message: %.80s", text)
+            return
+        bridge = self.bridge
+        if kind == "ping":
+            await client.socket.send_str(json.dumps({"type": "pong", "t": message.get("t")}))
+        elif kind == "select":
+            client.agent = str(message.get("agent") or "") or None
+        elif kind == "camera":
+            client.camera = "depth" if message.get("kind") == "depth" else "rgb"
+        elif kind == "drive" and bridge is not None:
+            agent = str(message.get("agent", ""))
+            try:
+                v, w = float(message.get("v", 0.0)), float(message.get("w", 0.0))
+            except (TypeError, ValueError):
+                return
+            client.driving.add(agent)
+            bridge.gate.drive(agent, v, w, bool(message.get("deadman")), time.monotonic())
+        elif kind == "estop" and bridge is not None:
+            agent, engage = str(message.get("agent", "")), bool(message.get("engage"))
+            if engage:
+                bridge.gate.release(agent)
+            ok, detail = await asyncio.to_thread(bridge.estop, agent, engage)
+            await client.socket.send_str(
+                json.dumps({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
+            )
+
+    async def _teleop_loop(self) -> None:
+        next_tick = time.monotonic()
+        while True:
+            if self.bridge is not None:
+                self.bridge.tick_teleop(time.monotonic())
+            next_tick += self.teleop_period
+            await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
+
+    # -- bridge → browsers ---------------------------------------------------------------------------------
+    def _wanted_cameras(self) -> set[tuple[str, str]]:
+        return {(c.agent, c.camera) for c in list(self._clients.values()) if c.agent}
+
+    def _emit_threadsafe(self, message: dict[str, Any], agent_filter: str | None) -> None:
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        text = json.dumps(message)
+        loop.call_soon_threadsafe(self._broadcast, text, agent_filter, message.get("kind"))
+
+    def _broadcast(self, text: str, agent_filter: str | None, kind: str | None) -> None:
+        for client in list(self._clients.values()):
+            if agent_filter is not None and (client.agent != agent_filter or client.camera != kind):
+                continue
+            if client.socket.closed:
+                continue
+            task = asyncio.ensure_future(self._send(client, text))
+            self._pending.add(task)
+            task.add_done_callback(self._pending.discard)
+
+    @staticmethod
+    async def _send(client: _Client, text: str) -> None:
+        try:
+            await client.socket.send_str(text)
+        except (ConnectionError, RuntimeError) as err:
+            log.debug("browser went away: %s", err)

@@ -1,0 +1,343 @@
+// fleetslam operator console: 3D map, live camera, network statistics and teleoperation.
+import * as THREE from "three";
+import { OrbitControls } from "/static/vendor/OrbitControls.js";
+
+const COLORS = ["#39b5ff", "#ff7a45", "#3ddc84", "#c77dff", "#ffd166", "#ef476f"];
+const state = {
+  socket: null, agents: [], selected: null, camera: "rgb", limits: { max_linear: 0.5, max_angular: 1.2 },
+  rtt: null, lastPong: 0, voxelCount: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
+  deadman: { key: false, button: false, pad: false }, keys: new Set(), stick: { v: 0, w: 0 }, estop: false,
+};
+window.fleetslam = state; // for tests and the curious
+
+// ---------------------------------------------------------------- 3D view
+const container = document.getElementById("view3d");
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+container.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color("#0f141a");
+scene.up.set(0, 0, 1);
+const camera3d = new THREE.PerspectiveCamera(55, 1, 0.05, 500);
+camera3d.up.set(0, 0, 1);
+camera3d.position.set(-8, -10, 12);
+const controls = new OrbitControls(camera3d, renderer.domElement);
+controls.target.set(5, 2, 0);
+controls.update();
+scene.add(new THREE.AmbientLight(0xffffff, 0.7));
+const sun = new THREE.DirectionalLight(0xffffff, 0.8);
+sun.position.set(10, -5, 20);
+scene.add(sun);
+const grid = new THREE.GridHelper(60, 60, 0x263140, 0x1a222c);
+grid.rotation.x = Math.PI / 2;
+scene.add(grid);
+scene.add(new THREE.AxesHelper(1.0));
+
+function resize() {
+  const w = container.clientWidth, h = container.clientHeight;
+  renderer.setSize(w, h);
+  camera3d.aspect = w / Math.max(h, 1);
+  camera3d.updateProjectionMatrix();
+}
+window.addEventListener("resize", resize);
+resize();
+
+const agentViews = new Map();
+function agentColor(name) {
+  if (name === "fleet") return "#aab4c0";
+  const i = Math.max(0, state.agents.indexOf(name));
+  return COLORS[i % COLORS.length];
+}
+function heightColor(z, out) {
+  // Like octomap_server's height map: hue over the height band.
+  const t = Math.min(1, Math.max(0, (z + 0.2) / 3.0));
+  out.setHSL(0.66 * (1 - t), 0.85, 0.55);
+  return out;
+}
+function view(agent) {
+  let v = agentViews.get(agent);
+  if (v) return v;
+  v = { voxels: new Map(), mesh: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
+  agentViews.set(agent, v);
+  return v;
+}
+const cubeGeometry = new THREE.BoxGeometry(1, 1, 1);
+function rebuildVoxels(agent, v) {
+  if (v.mesh) { scene.remove(v.mesh); v.mesh.dispose(); }
+  const n = v.voxels.size;
+  const material = new THREE.MeshLambertMaterial({ transparent: agent === "fleet", opacity: agent === "fleet" ? 0.35 : 1 });
+  const mesh = new THREE.InstancedMesh(cubeGeometry, material, Math.max(n, 1));
+  const m = new THREE.Matrix4(), c = new THREE.Color();
+  let i = 0;
+  for (const [x, y, z] of v.voxels.values()) {
+    m.makeScale(v.size * 0.96, v.size * 0.96, v.size * 0.96).setPosition(x, y, z);
+    mesh.setMatrixAt(i, m);
+    mesh.setColorAt(i, heightColor(z, c));
+    i++;
+  }
+  mesh.count = n;
+  mesh.instanceMatrix.needsUpdate = true;
+  if (mesh.instanceColor) mesh.instanceColor.needsUpdate = true;
+  scene.add(mesh);
+  v.mesh = mesh;
+  v.dirty = false;
+}
+function onVoxels(msg) {
+  const v = view(msg.agent);
+  v.size = msg.size;
+  if (msg.reset) v.voxels.clear();
+  const key = (p) => p.map((x) => Math.round(x / msg.size)).join(",");
+  for (const p of msg.remove) v.voxels.delete(key(p));
+  for (const p of msg.add) v.voxels.set(key(p), p);
+  v.dirty = true;
+}
+function lineFor(points, color, dashed) {
+  const geometry = new THREE.BufferGeometry().setFromPoints(points.map((p) => new THREE.Vector3(p[0], p[1], p[2] + 0.02)));
+  const material = dashed
+    ? new THREE.LineDashedMaterial({ color, dashSize: 0.15, gapSize: 0.1 })
+    : new THREE.LineBasicMaterial({ color });
+  const line = new THREE.Line(geometry, material);
+  if (dashed) line.computeLineDistances();
+  return line;
+}
+function onPath(msg) {
+  const v = view(msg.agent);
+  if (v.paths[msg.source]) scene.remove(v.paths[msg.source]);
+  const color = new THREE.Color(agentColor(msg.agent));
+  if (msg.source === "truth") color.multiplyScalar(0.55);
+  v.paths[msg.source] = lineFor(msg.points, color, msg.source === "truth");
+  scene.add(v.paths[msg.source]);
+}
+function robotMarker(color) {
+  const group = new THREE.Group();
+  const body = new THREE.Mesh(new THREE.CylinderGeometry(0.22, 0.22, 0.18, 24), new THREE.MeshLambertMaterial({ color }));
+  body.rotation.x = Math.PI / 2;
+  body.position.z = 0.09;
+  const nose = new THREE.Mesh(new THREE.ConeGeometry(0.09, 0.25, 12), new THREE.MeshLambertMaterial({ color: 0xffffff }));
+  nose.rotation.z = -Math.PI / 2;
+  nose.position.set(0.3, 0, 0.12);
+  group.add(body, nose);
+  return group;
+}
+function onPose(msg) {
+  const v = view(msg.agent);
+  const source = msg.source;
+  if (!v.poses[source]) {
+    v.poses[source] = robotMarker(agentColor(msg.agent));
+    if (source === "truth") v.poses[source].children.forEach((c) => { c.material.transparent = true; c.material.opacity = 0.35; });
+    scene.add(v.poses[source]);
+    v.trail = v.trail || {};
+  }
+  v.poses[source].position.set(msg.x, msg.y, msg.z);
+  v.poses[source].rotation.set(0, 0, msg.yaw);
+  v.trail = v.trail || {};
+  const trail = (v.trail[source] = v.trail[source] || []);
+  const last = trail[trail.length - 1];
+  if (!last || Math.hypot(last[0] - msg.x, last[1] - msg.y) > 0.05) {
+    trail.push([msg.x, msg.y, msg.z]);
+    if (!v.pathsFromTopic || !v.pathsFromTopic[source]) {
+      if (v.paths["trail-" + source]) scene.remove(v.paths["trail-" + source]);
+      const color = new THREE.Color(agentColor(msg.agent));
+      if (source === "truth") color.multiplyScalar(0.55);
+      v.paths["trail-" + source] = lineFor(trail, color, source === "truth");
+      scene.add(v.paths["trail-" + source]);
+    }
+  }
+}
+function frustum(color) {
+  const s = 0.18, d = 0.25;
+  const pts = [[0, 0, 0], [s, s * 0.75, d], [0, 0, 0], [-s, s * 0.75, d], [0, 0, 0], [s, -s * 0.75, d], [0, 0, 0], [-s, -s * 0.75, d],
+    [s, s * 0.75, d], [-s, s * 0.75, d], [-s, s * 0.75, d], [-s, -s * 0.75, d], [-s, -s * 0.75, d], [s, -s * 0.75, d], [s, -s * 0.75, d], [s, s * 0.75, d]];
+  const geometry = new THREE.BufferGeometry().setFromPoints(pts.map((p) => new THREE.Vector3(...p)));
+  return new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ color, transparent: true, opacity: 0.7 }));
+}
+function onKeyframes(msg) {
+  const v = view(msg.agent);
+  if (v.keyframes) scene.remove(v.keyframes);
+  const group = new THREE.Group();
+  const color = agentColor(msg.agent);
+  for (const [x, y, z, qx, qy, qz, qw] of msg.poses) {
+    const f = frustum(color);
+    f.position.set(x, y, z);
+    f.quaternion.set(qx, qy, qz, qw);
+    group.add(f);
+  }
+  v.keyframes = group;
+  scene.add(group);
+}
+function animate() {
+  let total = 0;
+  for (const [agent, v] of agentViews) {
+    if (v.dirty) rebuildVoxels(agent, v);
+    total += v.voxels.size;
+  }
+  state.voxelCount = total;
+  document.getElementById("counts").textContent = `voxels: ${total.toLocaleString()}  ·  agents: ${state.agents.length}`;
+  controls.update();
+  renderer.render(scene, camera3d);
+  requestAnimationFrame(animate);
+}
+requestAnimationFrame(animate);
+
+// ---------------------------------------------------------------- agents, camera, statistics
+function renderAgents() {
+  const box = document.getElementById("agents");
+  box.innerHTML = "";
+  for (const name of state.agents) {
+    const b = document.createElement("button");
+    b.innerHTML = `<span class="swatch" style="background:${agentColor(name)}"></span>${name}`;
+    if (name === state.selected) b.classList.add("selected");
+    b.onclick = () => select(name);
+    box.appendChild(b);
+  }
+  document.getElementById("legend").innerHTML = state.agents
+    .map((a) => `<span style="color:${agentColor(a)}">■</span> ${a}`).join("&nbsp;&nbsp;") +
+    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; solid: SLAM/odometry, dashed: ground truth";
+}
+function select(name) {
+  state.selected = name;
+  send({ type: "select", agent: name });
+  document.getElementById("camera-title").textContent = `camera · ${name}`;
+  renderAgents();
+}
+function onImage(msg) {
+  if (msg.agent !== state.selected) return;
+  document.getElementById("camera").src = `data:${msg.mime};base64,${msg.data}`;
+  state.frameCount += 1;
+  state.lastFrameSeq = msg.seq;
+  document.getElementById("camera-meta").textContent = `${msg.kind} frame ${msg.seq} · ${new Date().toLocaleTimeString()}`;
+}
+function onStats(msg) {
+  const body = document.querySelector("#stats tbody");
+  const rows = [];
+  let current = null, bw = 0, drops = 0;
+  for (const r of msg.rows) {
+    if (r.agent !== current) { current = r.agent; rows.push(`<tr class="agent"><td colspan="6">${r.agent || "(root)"}</td></tr>`); }
+    bw += r.bandwidth_bps; drops += r.dropped;
+    rows.push(`<tr><td title="${r.node_pub} → ${r.node_sub}">${r.topic}</td><td>${(r.bandwidth_bps / 1000).toFixed(1)}</td>` +
+      `<td>${r.rate_hz.toFixed(1)}</td><td class="${r.dropped ? "drop" : ""}">${r.dropped}</td>` +
+      `<td>${r.age_mean_ms.toFixed(1)}±${r.age_std_ms.toFixed(1)}</td><td>${r.period_mean_ms.toFixed(0)}±${r.period_std_ms.toFixed(0)}</td></tr>`);
+  }
+  body.innerHTML = rows.join("");
+  document.getElementById("stats-summary").textContent = `${(bw / 1e6).toFixed(2)} MB/s · ${drops} dropped`;
+}
+document.getElementById("depth-toggle").onchange = (e) => {
+  state.camera = e.target.checked ? "depth" : "rgb";
+  send({ type: "camera", kind: state.camera });
+};
+
+// ---------------------------------------------------------------- teleoperation
+const deadmanButton = document.getElementById("deadman");
+function deadmanHeld() { return state.deadman.key || state.deadman.button || state.deadman.pad; }
+function command() {
+  const maxV = parseFloat(document.getElementById("max-v").value);
+  const maxW = parseFloat(document.getElementById("max-w").value);
+  let v = 0, w = 0;
+  if (state.keys.has("w") || state.keys.has("arrowup")) v += 1;
+  if (state.keys.has("s") || state.keys.has("arrowdown")) v -= 1;
+  if (state.keys.has("a") || state.keys.has("arrowleft")) w += 1;
+  if (state.keys.has("d") || state.keys.has("arrowright")) w -= 1;
+  v += state.stick.v; w += state.stick.w;
+  const pad = navigator.getGamepads ? [...navigator.getGamepads()].find((g) => g) : null;
+  state.deadman.pad = !!(pad && pad.buttons[4] && pad.buttons[4].pressed);
+  if (pad) {
+    const dz = (x) => (Math.abs(x) < 0.12 ? 0 : x);
+    v += -dz(pad.axes[1] || 0); w += -dz(pad.axes[0] || 0);
+  }
+  v = Math.max(-1, Math.min(1, v)); w = Math.max(-1, Math.min(1, w));
+  return { v: v * maxV, w: w * maxW };
+}
+let wasDriving = false;
+setInterval(() => {
+  if (!state.selected || !state.socket || state.socket.readyState !== 1) return;
+  const held = deadmanHeld() && !state.estop;
+  const { v, w } = command();
+  deadmanButton.classList.toggle("active", held);
+  const badge = document.getElementById("drive-state");
+  badge.textContent = state.estop ? "E-STOP" : held ? `driving ${v.toFixed(2)} m/s ${w.toFixed(2)} rad/s` : "idle";
+  badge.className = "badge" + (state.estop ? " stopped" : held ? " driving" : "");
+  if (held || wasDriving) {
+    send({ type: "drive", agent: state.selected, v: held ? v : 0, w: held ? w : 0, deadman: held });
+    state.driveSent += 1;
+  }
+  wasDriving = held;
+}, 50); // 20 Hz: the server's stream stops within its timeout if these stop arriving
+
+window.addEventListener("keydown", (e) => {
+  const k = e.key.toLowerCase();
+  if (k === " ") { state.deadman.key = true; e.preventDefault(); return; }
+  if (["w", "a", "s", "d", "arrowup", "arrowdown", "arrowleft", "arrowright"].includes(k)) { state.keys.add(k); e.preventDefault(); }
+});
+window.addEventListener("keyup", (e) => {
+  const k = e.key.toLowerCase();
+  if (k === " ") state.deadman.key = false;
+  state.keys.delete(k);
+});
+window.addEventListener("blur", () => { state.keys.clear(); state.deadman.key = false; state.deadman.button = false; });
+deadmanButton.addEventListener("pointerdown", () => { state.deadman.button = true; });
+for (const ev of ["pointerup", "pointerleave", "pointercancel"]) deadmanButton.addEventListener(ev, () => { state.deadman.button = false; });
+
+const stick = document.getElementById("joystick"), knob = document.getElementById("knob");
+function stickMove(e) {
+  const r = stick.getBoundingClientRect();
+  let dx = (e.clientX - r.left - r.width / 2) / (r.width / 2), dy = (e.clientY - r.top - r.height / 2) / (r.height / 2);
+  const n = Math.hypot(dx, dy); if (n > 1) { dx /= n; dy /= n; }
+  state.stick = { v: -dy, w: -dx };
+  knob.style.left = `${42 + dx * 42}px`; knob.style.top = `${42 + dy * 42}px`;
+}
+stick.addEventListener("pointerdown", (e) => { stick.setPointerCapture(e.pointerId); state.deadman.button = true; stickMove(e); });
+stick.addEventListener("pointermove", (e) => { if (stick.hasPointerCapture(e.pointerId)) stickMove(e); });
+stick.addEventListener("pointerup", () => { state.stick = { v: 0, w: 0 }; state.deadman.button = false; knob.style.left = "42px"; knob.style.top = "42px"; });
+
+document.getElementById("estop").onclick = () => {
+  if (!state.selected) return;
+  state.estop = !state.estop;
+  document.getElementById("estop").classList.toggle("engaged", state.estop);
+  document.getElementById("estop").textContent = state.estop ? "E-STOP ENGAGED (click to release)" : "E-STOP";
+  send({ type: "estop", agent: state.selected, engage: state.estop });
+};
+for (const [id, out] of [["max-v", "max-v-out"], ["max-w", "max-w-out"]]) {
+  document.getElementById(id).oninput = (e) => { document.getElementById(out).textContent = parseFloat(e.target.value).toFixed(2); };
+}
+
+// ---------------------------------------------------------------- connection
+function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
+function connect() {
+  const socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  state.socket = socket;
+  socket.onmessage = (event) => {
+    const msg = JSON.parse(event.data);
+    switch (msg.type) {
+      case "hello":
+        state.limits = msg.limits;
+        document.getElementById("max-v").max = msg.limits.max_linear;
+        document.getElementById("max-w").max = msg.limits.max_angular;
+      // falls through
+      case "agents":
+        state.agents = msg.agents;
+        if (!state.selected && state.agents.length) select(state.agents[0]);
+        renderAgents();
+        break;
+      case "voxels": onVoxels(msg); break;
+      case "pose": onPose(msg); break;
+      case "path": onPath(msg); break;
+      case "keyframes": onKeyframes(msg); break;
+      case "image": onImage(msg); break;
+      case "stats": onStats(msg); break;
+      case "pong":
+        state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
+        break;
+      case "estop": if (!msg.ok) console.warn("e-stop:", msg.message); break;
+    }
+  };
+  socket.onopen = () => { if (state.selected) send({ type: "select", agent: state.selected }); send({ type: "camera", kind: state.camera }); };
+  socket.onclose = () => { state.rtt = null; setTimeout(connect, 1000); };
+}
+setInterval(() => {
+  send({ type: "ping", t: performance.now() });
+  const link = document.getElementById("link"), text = document.getElementById("link-text");
+  const fresh = state.socket && state.socket.readyState === 1 && state.rtt !== null && performance.now() - state.lastPong < 3000;
+  link.className = "link" + (fresh ? (state.rtt > 150 ? " slow" : " ok") : "");
+  text.textContent = fresh ? `link ok · RTT ${state.rtt.toFixed(1)} ms` : "link lost";
+}, 1000);
+connect();

@@ -1,0 +1,99 @@
+"""The console's server with a real router, a real robot node and a WebSocket client."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from fleetslam.middleware import Context
+from fleetslam.station.protocol import TeleopLimits
+from fleetslam.station.server import StationServer
+
+from ..support import wait_until
+from .conftest import RobotUnderTest
+
+aiohttp = pytest.importorskip("aiohttp")
+
+
+async def _session(url: str, actions: Callable[[Any, list[dict[str, Any]]], Any]) -> list[dict[str, Any]]:
+    received: list[dict[str, Any]] = []
+    async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+
+        async def reader() -> None:
+            async for frame in ws:
+                received.append(json.loads(frame.data))
+
+        task = asyncio.create_task(reader())
+        await actions(ws, received)
+        task.cancel()
+    return received
+
+
+def test_console_streams_map_camera_and_drives(
+    make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    limits = TeleopLimits(max_linear=0.4, max_angular=1.0)
+    with StationServer(make_context(), port=0, limits=limits) as server:
+
+        async def actions(ws: Any, received: list[dict[str, Any]]) -> None:
+            await ws.send_str(json.dumps({"type": "select", "agent": "c3po"}))
+            for _ in range(60):
+                kinds = {m["type"] for m in received}
+                if {"voxels", "image", "pose"} <= kinds:
+                    break
+                await asyncio.sleep(0.1)
+            await ws.send_str(json.dumps({"type": "ping", "t": 1.5}))
+            start = time.monotonic()
+            while time.monotonic() - start < 0.6:  # hold the deadman and W for 0.6 s
+                await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 1.0, "w": 0.0, "deadman": True}))
+                await asyncio.sleep(0.05)
+            await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0, "w": 0, "deadman": False}))
+            await asyncio.sleep(0.5)
+            await ws.send_str(json.dumps({"type": "estop", "agent": "c3po", "engage": True}))
+            for _ in range(50):
+                if any(m["type"] == "estop" for m in received):
+                    break
+                await asyncio.sleep(0.1)
+
+        received = asyncio.run(_session(server.url, actions))
+    kinds = [m["type"] for m in received]
+    assert (kinds[0] == "hello" and "c3po" in received[0]["agents"]) or any(
+        m["type"] == "agents" and "c3po" in m["agents"] for m in received
+    )
+    voxels = [m for m in received if m["type"] == "voxels" and m["agent"] == "c3po"]
+    assert voxels and voxels[-1]["total"] > 0
+    # Incremental: later updates carry only the new voxels, not the whole map again.
+    if len(voxels) > 1:
+        assert len(voxels[-1]["add"]) < voxels[-1]["total"]
+    images = [m for m in received if m["type"] == "image"]
+    assert images and images[0]["mime"] == "image/jpeg" and images[-1]["seq"] > images[0]["seq"] - 1
+    assert any(m["type"] == "pong" and m["t"] == 1.5 for m in received)
+    assert any(m["type"] == "pose" and m["agent"] == "c3po" for m in received)
+    estop = next(m for m in received if m["type"] == "estop")
+    assert estop["ok"] and test_robot.estop_requests == [True]
+    moving = [c for c in test_robot.commands if c[1] != 0.0]
+    assert moving and all(abs(v - 0.4) < 1e-9 for _, v, _ in moving)  # clamped to the console's limit
+    last_moving = moving[-1][0]
+    stops = [c for c in test_robot.commands if c[1] == 0.0 and c[0] >= last_moving]
+    assert stops, "no zero command after the deadman was released"
+
+
+def test_disconnect_while_driving_stops(make_context: Callable[..., Context], test_robot: RobotUnderTest) -> None:
+    with StationServer(make_context(), port=0) as server:
+
+        async def actions(ws: Any, received: list[dict[str, Any]]) -> None:
+            for _ in range(10):
+                await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0.3, "w": 0.2, "deadman": True}))
+                await asyncio.sleep(0.05)
+
+        asyncio.run(_session(server.url, actions))
+        closed_at = time.monotonic()
+        assert wait_until(lambda: any(c[1] == 0.0 and c[0] >= closed_at - 0.05 for c in test_robot.commands), 2.0)
+        time.sleep(0.5)
+        late = [c for c in test_robot.commands if c[0] > closed_at + 0.2 and c[1] != 0.0]
+        assert not late
