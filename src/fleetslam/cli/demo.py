@@ -1,0 +1,30 @@
+"""`fleetslam demo`: run the whole fleet on this machine."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from fleetslam.launch.demo import run_demo
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robots", default="c3po,r2d2", help="comma-separated agent names")
+    parser.add_argument("--headless", action="store_true", help="no operator console")
+    parser.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)")
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default: results/demo-<time>)")
+    parser.add_argument("--port", type=int, default=8080, help="console port")
+    parser.add_argument("--router-port", type=int, default=7447, help="router port on 127.0.0.1")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    robots = [r.strip() for r in args.robots.split(",") if r.strip()]
+    out = args.out or Path("results") / time.strftime("demo-%Y%m%d-%H%M%S")
+    result = run_demo(
+        robots=robots, duration_s=args.duration, out_dir=out, port=args.port, router_port=args.router_port,
+        headless=args.headless,
+    )  # fmt: skip
+    print(f"results in {result.out_dir}: report.md, statistics.json, bandwidth.png")
+    return 0
