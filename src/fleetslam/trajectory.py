@@ -23,8 +23,7 @@ class Trajectory:
     def __post_init__(self) -> None:
         if self.stamps.shape[0] != self.poses.shape[0] or self.poses.shape[1:] != (4, 4):
             raise ValueError(
-                "trajectory needs stamps (N,) and poses (N,4,4), "
-                f"got {self.stamps.shape} and {self.poses.shape}"
+                f"trajectory needs stamps (N,) and poses (N,4,4), got {self.stamps.shape} and {self.poses.shape}"
             )
 
     def __len__(self) -> int:
@@ -50,9 +49,7 @@ def write_tum(path: str | Path, trajectory: Trajectory) -> None:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
         for stamp, pose in zip(trajectory.stamps, trajectory.poses, strict=True):
             t, q = pose_to_quat(pose)
-            f.write(
-                f"{stamp:.6f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} {q[0]:.6f} {q[1]:.6f} {q[2]:.6f} {q[3]:.6f}\n"
-            )
+            f.write(f"{stamp:.6f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} {q[0]:.6f} {q[1]:.6f} {q[2]:.6f} {q[3]:.6f}\n")
 
 
 def read_tum(path: str | Path) -> Trajectory:
