@@ -58,8 +58,7 @@ class MissingExtraError(FleetslamError):
 
     def __init__(self, module: str, extra: str) -> None:
         super().__init__(
-            f"the optional dependency '{module}' is not installed; "
-            f"install it with: pip install 'fleetslam[{extra}]'"
+            f"the optional dependency '{module}' is not installed; install it with: pip install 'fleetslam[{extra}]'"
         )
         self.module = module
         self.extra = extra
