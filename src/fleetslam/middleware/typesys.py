@@ -11,7 +11,6 @@ Type hashes follow REP-2011 (`RIHS01_<sha256>`); a service's hash covers its req
 from __future__ import annotations
 
 import difflib
-import functools
 import hashlib
 import json
 import threading
@@ -73,22 +72,41 @@ def _split_service(text: str, name: str) -> tuple[str, str]:
     return "\n".join(lines[:cut]) + "\n", "\n".join(lines[cut + 1 :]) + "\n"
 
 
-@functools.cache
+_store: Typestore | None = None
+
+
 def get_typestore() -> Typestore:
-    """The process-wide typestore: ROS 2 Jazzy types, our messages and the service request/response types."""
+    """The process-wide typestore: ROS 2 Jazzy types, our messages and the service request/response types.
+
+    Built on first use under a lock, so threads that race for it share one store.
+    """
+    global _store
+    store = _store
+    if store is not None:
+        return store
+    with _lock:
+        if _store is None:
+            _store = _build_typestore()
+        return _store
+
+
+def _build_typestore() -> Typestore:
     store = _rosbags_typestore(Stores.ROS2_JAZZY)
     msgs, srvs = _own_definitions()
     types: dict[str, Any] = {}
-    # Messages first, in an order where nested own types can be resolved (rosbags resolves lazily).
     for name, text in sorted(msgs.items()):
         types.update(_parse_msg(text, name))
     services = {**STANDARD_SERVICES, **srvs}
+    service_names: dict[str, tuple[str, str]] = {}
     for name, text in sorted(services.items()):
         request, response = _split_service(text, name)
         types.update(_parse_msg(request, f"{name}_Request"))
         types.update(_parse_msg(response, f"{name}_Response"))
-        _services[name] = (f"{name}_Request", f"{name}_Response")
+        service_names[name] = (f"{name}_Request", f"{name}_Response")
+    # rosbags gives field-less types (Trigger's request) the placeholder member when registering, so their
+    # CDR body is the one byte FastCDR writes and expects.
     store.register(types)
+    _services.update(service_names)
     return store
 
 
@@ -143,6 +161,9 @@ def deserialize(data: bytes | memoryview, type_name: str) -> Any:
     store = get_typestore()
     if type_name not in store.fielddefs:
         get_type(type_name)
+    if not isinstance(data, bytes | bytearray | memoryview):
+        raise MessageError(f"type {type_name}: payload must be bytes, got {type(data).__name__}")
+    # A copy of a borrowed buffer: the returned message's arrays are views of it and outlive the sample.
     raw = bytes(data)
     if len(raw) < 4:
         raise MessageError(f"type {type_name}: payload of {len(raw)} bytes is shorter than the CDR header")
@@ -174,6 +195,8 @@ def ros_type_name(dds_name: str) -> str:
 
 # -- REP-2011 type hashes --------------------------------------------------------------------------------
 _EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
+#: type_id values of rosidl's FieldType.msg (rosbags' table lacks the wide strings).
+_TYPE_IDS: dict[str, int] = {**TIDMAP, "wstring": 18, "bounded_wstring": 22}
 
 
 def _field_description(name: str, desc: Any, structs: dict[str, Any], fielddefs: Mapping[str, Any]) -> dict:
@@ -194,10 +217,10 @@ def _field_description(name: str, desc: Any, structs: dict[str, Any], fielddefs:
         type_id = increment + 1
         nested = rest
         _struct_description(rest, structs, fielddefs)
-    elif rest[0] == "string" and rest[1]:
-        type_id, string_capacity = increment + TIDMAP["bounded_string"], rest[1]
+    elif rest[0] in ("string", "wstring") and rest[1]:
+        type_id, string_capacity = increment + _TYPE_IDS[f"bounded_{rest[0]}"], rest[1]
     else:
-        type_id = increment + TIDMAP[rest[0]]
+        type_id = increment + _TYPE_IDS[rest[0]]
     return {
         "name": name,
         "type": {
@@ -256,27 +279,45 @@ def _service_fielddefs(name: str, fielddefs: Mapping[str, Any]) -> dict[str, Any
 _hash_cache: dict[str, str] = {}
 
 
-def type_hash(name: str) -> str:
-    """REP-2011 hash (`RIHS01_` + 64 hex digits) of a message or service type."""
-    cached = _hash_cache.get(name)
-    if cached is not None:
-        return cached
-    store = get_typestore()
+def _service_of(name: str) -> str | None:
+    """The service whose description defines ``name`` (the service itself or its `_Event`), else None."""
     if is_service_type(name):
-        fielddefs: Mapping[str, Any] = _service_fielddefs(name, store.fielddefs)
+        return name
+    if name.endswith("_Event") and is_service_type(name[: -len("_Event")]):
+        return name[: -len("_Event")]
+    return None
+
+
+def type_description(name: str) -> dict[str, Any]:
+    """REP-2011 description of a type: ``{"type_description": ..., "referenced_type_descriptions": [...]}``.
+
+    Referenced types are every nested type, recursively, sorted by name; default values are left out.
+    """
+    store = get_typestore()
+    service = _service_of(name)
+    if service is not None:
+        fielddefs: Mapping[str, Any] = _service_fielddefs(service, store.fielddefs)
     else:
         get_type(name)
         fielddefs = store.fielddefs
     structs: dict[str, Any] = {}
     description = _struct_description(name, structs, fielddefs)
-    document = {
+    return {
         "type_description": description,
         "referenced_type_descriptions": [v for k, v in sorted(structs.items()) if k != name],
     }
+
+
+def type_hash(name: str) -> str:
+    """REP-2011 hash (`RIHS01_` + 64 hex digits) of a message or service type (also `pkg/srv/Name_Event`)."""
+    cached = _hash_cache.get(name)
+    if cached is not None:
+        return cached
+    document = type_description(name)
     digest = hashlib.sha256(json.dumps(document, separators=(", ", ": ")).encode()).hexdigest()
-    with _lock:
-        _hash_cache[name] = f"RIHS01_{digest}"
-    return _hash_cache[name]
+    result = f"RIHS01_{digest}"
+    _hash_cache[name] = result  # a plain dict store: atomic, and a racing thread computes the same value
+    return result
 
 
 # -- building and printing messages --------------------------------------------------------------------
@@ -305,6 +346,10 @@ def header(frame_id: str, stamp_ns: int) -> Any:
 def message_to_dict(msg: Any) -> Any:
     """Plain Python data (dicts, lists, numbers, strings) of a message, for YAML/JSON output."""
     if is_dataclass(msg) and not isinstance(msg, type):
+        # rosbags' dataclasses also list constants and __msgtype__ as fields; the typestore knows the members.
+        members = get_typestore().fielddefs.get(getattr(msg, "__msgtype__", ""))
+        if members is not None:
+            return {name: message_to_dict(getattr(msg, name)) for name, _ in members[1]}
         return {f.name: message_to_dict(getattr(msg, f.name)) for f in fields(msg) if f.name != "__msgtype__"}
     if isinstance(msg, np.ndarray):
         return msg.tolist()
@@ -374,11 +419,15 @@ def _convert(desc: Any, value: Any, store: Typestore, where: str) -> Any:
         if not isinstance(value, Mapping):
             raise MessageError(f"field '{where}': expected a mapping for {desc[1]}, got {value!r}")
         return _build(desc[1], value, store, where)
-    sub = desc[1][0]
+    sub, bound = desc[1]
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
     if not isinstance(value, list | tuple):
         raise MessageError(f"field '{where}': expected a list, got {value!r}")
-    if kind == Nodetype.ARRAY and len(value) != desc[1][1]:
-        raise MessageError(f"field '{where}': expected {desc[1][1]} values, got {len(value)}")
+    if kind == Nodetype.ARRAY and len(value) != bound:
+        raise MessageError(f"field '{where}': expected {bound} values, got {len(value)}")
+    if kind == Nodetype.SEQUENCE and bound and len(value) > bound:
+        raise MessageError(f"field '{where}': at most {bound} values allowed, got {len(value)}")
     items = [_convert(sub, v, store, f"{where}[{i}]") for i, v in enumerate(value)]
     if sub[0] == Nodetype.BASE and sub[1][0] != "string":
         return np.asarray(items, dtype=_numpy_dtype(sub[1][0]))
@@ -403,4 +452,6 @@ def message_from_dict(type_name: str, data: Mapping[str, Any] | None) -> Any:
     """Build a message from plain data; missing fields get zero values, unknown keys raise MessageError."""
     store = get_typestore()
     get_type(type_name)
+    if data is not None and not isinstance(data, Mapping):
+        raise MessageError(f"{type_name}: expected a mapping of field names to values, got {data!r}")
     return _build(type_name, data or {}, store, type_name)

@@ -19,7 +19,7 @@ from typing import Literal
 
 import xxhash
 
-from fleetslam.errors import MessageError
+from fleetslam.errors import MessageError, MiddlewareError
 
 ATTACHMENT_SIZE = 33
 LIVELINESS_PREFIX = "@ros2_lv"
@@ -44,7 +44,12 @@ def encode_attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes
     """The 33-byte attachment."""
     if len(gid) != 16:
         raise MessageError(f"attachment GID must be 16 bytes, got {len(gid)}")
-    return struct.pack("<qqB", sequence_number, source_timestamp_ns, 16) + gid
+    try:
+        return struct.pack("<qqB", sequence_number, source_timestamp_ns, 16) + bytes(gid)
+    except struct.error as err:
+        raise MessageError(
+            f"attachment sequence number {sequence_number} / timestamp {source_timestamp_ns} must fit int64: {err}"
+        ) from err
 
 
 _LABELS = (b"sequence_number", b"source_timestamp", b"source_gid")
@@ -123,9 +128,12 @@ def topic_key(domain_id: int, fq_name: str, type_name: str) -> str:
     return f"{domain_id}/{strip_name(fq_name)}/{dds_type_name(type_name)}/{type_hash(type_name)}"
 
 
-def topic_key_any_type(domain_id: int, fq_name: str) -> str:
+def topic_key_expr_any_type(domain_id: int, fq_name: str) -> str:
     """Key expression matching a topic of any type (for tools that learn the type from the sample)."""
     return f"{domain_id}/{strip_name(fq_name)}/*/*"
+
+
+topic_key_any_type = topic_key_expr_any_type
 
 
 def parse_topic_key(key: str) -> tuple[int, str, str, str]:
@@ -145,6 +153,12 @@ History = Literal["keep_last", "keep_all"]
 LivelinessPolicy = Literal["automatic", "manual_by_topic"]
 
 
+_REL = {"reliable": "1", "best_effort": "2"}
+_DUR = {"transient_local": "1", "volatile": "2"}
+_HIST = {"keep_last": "1", "keep_all": "2"}
+_LIV = {"automatic": "1", "manual_by_topic": "3"}
+
+
 @dataclass(frozen=True)
 class QoSProfile:
     """ROS 2 quality of service, as far as rmw_zenoh uses it (durations in ns; None = infinite)."""
@@ -159,15 +173,16 @@ class QoSProfile:
     liveliness_lease_ns: int | None = None
 
     def __post_init__(self) -> None:
-        if self.depth < 0:
-            raise ValueError(f"QoS depth must be >= 0, got {self.depth}")
-
-
-_REL = {"reliable": "1", "best_effort": "2"}
-_DUR = {"transient_local": "1", "volatile": "2"}
-_HIST = {"keep_last": "1", "keep_all": "2"}
-_LIV = {"automatic": "1", "manual_by_topic": "3"}
-_DEFAULTS = {"reliability": "reliable", "durability": "volatile", "history": "keep_last", "liveliness": "automatic"}
+        choices = {"reliability": _REL, "durability": _DUR, "history": _HIST, "liveliness": _LIV}
+        for name, table in choices.items():
+            if getattr(self, name) not in table:
+                raise MiddlewareError(f"QoS {name} {getattr(self, name)!r}: expected one of {sorted(table)}")
+        if not isinstance(self.depth, int) or self.depth < 0:
+            raise MiddlewareError(f"QoS depth must be an integer >= 0, got {self.depth!r}")
+        for name in ("deadline_ns", "lifespan_ns", "liveliness_lease_ns"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or value < 0):
+                raise MiddlewareError(f"QoS {name} must be None (infinite) or an integer >= 0, got {value!r}")
 
 
 def _duration_chunk(ns: int | None) -> str:
@@ -210,8 +225,9 @@ def qos_to_token(qos: QoSProfile) -> str:
 def qos_from_token(text: str) -> QoSProfile:
     """Parse a token's QoS chunk; raises MessageError when malformed."""
     parts = text.split(":")
-    if len(parts) != 6:
-        raise MessageError(f"QoS chunk {text!r}: expected 6 ':'-separated fields")
+    # R : D : H,depth : DLs,DLns : LSs,LSns : LV,LLs,LLns
+    if [p.count(",") for p in parts] != [0, 0, 1, 1, 1, 2]:
+        raise MessageError(f"QoS chunk {text!r}: expected the form R:D:H,depth:s,ns:s,ns:LV,s,ns")
 
     def decode(table: dict[str, str], value: str, default: str) -> str:
         if not value:
@@ -219,7 +235,7 @@ def qos_from_token(text: str) -> QoSProfile:
         for name, code in table.items():
             if code == value:
                 return name
-        raise MessageError(f"QoS chunk {text!r}: unknown code {value!r}")
+        raise ValueError(f"unknown code {value!r}")
 
     try:
         history_code, _, depth_text = parts[2].partition(",")
@@ -234,7 +250,7 @@ def qos_from_token(text: str) -> QoSProfile:
             liveliness=decode(_LIV, liveliness_code, "automatic"),  # type: ignore[arg-type]
             liveliness_lease_ns=_duration_from_chunk(lease),
         )
-    except ValueError as err:
+    except (ValueError, MiddlewareError) as err:
         raise MessageError(f"QoS chunk {text!r}: {err}") from err
 
 
@@ -298,11 +314,16 @@ class LivelinessToken:
         parts = key.split("/")
         if len(parts) < 9 or parts[0] != LIVELINESS_PREFIX:
             raise MessageError(f"'{key}' is not an rmw_zenoh liveliness token")
+        if not all(parts):
+            raise MessageError(f"liveliness token '{key}' has an empty chunk")
+        for index, what in ((1, "domain id"), (3, "node id"), (4, "entity id")):
+            if not (parts[index].isascii() and parts[index].isdigit()):
+                raise MessageError(f"liveliness token '{key}': {what} {parts[index]!r} is not a decimal number")
         try:
             kind = EntityKind(parts[5])
-            domain_id, nid, eid = int(parts[1]), int(parts[3]), int(parts[4])
         except ValueError as err:
-            raise MessageError(f"liveliness token '{key}': {err}") from err
+            raise MessageError(f"liveliness token '{key}': unknown entity kind {parts[5]!r}") from err
+        domain_id, nid, eid = int(parts[1]), int(parts[3]), int(parts[4])
         common = {
             "domain_id": domain_id,
             "zid": parts[2],
