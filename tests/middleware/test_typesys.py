@@ -401,3 +401,15 @@ assert len(stores) == 8 and all(store is stores[0] for store in stores)
 assert typesys.is_service_type("std_srvs/srv/Trigger")
 """
     subprocess.run([sys.executable, "-c", script], check=True, timeout=120)
+
+
+def test_octomap_msgs_types_for_octomap_server_tools() -> None:
+    msg = ts.message_from_dict(
+        "octomap_msgs/msg/Octomap", {"binary": True, "id": "OcTree", "resolution": 0.05, "data": [1, -2, 3]}
+    )
+    back = ts.deserialize(ts.serialize(msg, "octomap_msgs/msg/Octomap"), "octomap_msgs/msg/Octomap")
+    assert back.id == "OcTree" and back.binary and list(back.data) == [1, -2, 3]
+    assert ts.service_types("octomap_msgs/srv/GetOctomap") == (
+        "octomap_msgs/srv/GetOctomap_Request",
+        "octomap_msgs/srv/GetOctomap_Response",
+    )

@@ -37,6 +37,12 @@ STANDARD_SERVICES: dict[str, str] = {
     "example_interfaces/srv/AddTwoInts": "int64 a\nint64 b\n---\nint64 sum\n",
 }
 
+#: Standard message definitions of ROS packages that the Jazzy typestore lacks (octomap_server's interfaces).
+STANDARD_MESSAGES: dict[str, str] = {
+    "octomap_msgs/msg/Octomap": ("std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n"),
+}
+STANDARD_SERVICES["octomap_msgs/srv/GetOctomap"] = "---\noctomap_msgs/Octomap map\n"
+
 _OWN_PACKAGE = "fleetslam_msgs"
 _lock = threading.Lock()
 _services: dict[str, tuple[str, str]] = {}
@@ -93,6 +99,7 @@ def get_typestore() -> Typestore:
 def _build_typestore() -> Typestore:
     store = _rosbags_typestore(Stores.ROS2_JAZZY)
     msgs, srvs = _own_definitions()
+    msgs = {**STANDARD_MESSAGES, **msgs}
     types: dict[str, Any] = {}
     for name, text in sorted(msgs.items()):
         types.update(_parse_msg(text, name))
