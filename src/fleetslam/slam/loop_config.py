@@ -1,0 +1,100 @@
+"""Configuration of the loop-closure side of the SLAM: detector (vocabulary, Bayes filter, verification) and
+memory management (STM/WM/LTM). Defaults are RTAB-Map's; the RTAB-Map parameter name is given per field.
+
+``fleetslam.slam.config.SlamConfig`` composes these two sections (``loop_closure`` and ``memory``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from fleetslam.config import ConfigModel
+
+DEFAULT_PREDICTION_LC: tuple[float, ...] = (
+    0.1,
+    0.36,
+    0.30,
+    0.16,
+    0.062,
+    0.0151,
+    0.00255,
+    0.000324,
+    2.5e-05,
+    1.3e-06,
+    4.8e-08,
+    1.5e-09,
+    3.1e-11,
+)
+
+
+class LoopClosureConfig(ConfigModel):
+    """Appearance-based loop-closure detection: vocabulary, Bayes filter, hypothesis selection, verification."""
+
+    descriptor_kind: Literal["binary", "float"] = "binary"
+    """Descriptor family: 'binary' (ORB/BRIEF, Hamming distance) or 'float' (SIFT/SURF, L2 distance)."""
+
+    nndr_ratio: float = Field(0.8, gt=0.0, le=1.0)
+    """Nearest-neighbour distance ratio (RTAB-Map Kp/NndrRatio): a descriptor joins its nearest word only if
+    d1 < ratio * d2, otherwise it becomes a new word."""
+
+    max_word_distance: float = Field(0.0, ge=0.0)
+    """Absolute bound on the distance to the nearest word for a match (0 = no bound, NNDR only). Hamming bits
+    for binary descriptors, L2 units for float ones."""
+
+    tf_idf_likelihood: bool = True
+    """Score locations with TF-IDF over the inverted index (RTAB-Map Kp/TfIdfLikelihoodUsed); if false, with the
+    ratio of common words (RTAB-Map's Signature::compareTo)."""
+
+    loop_threshold: float = Field(0.11, ge=0.0, le=1.0)
+    """Loop-closure threshold H on the hypothesis probability (RTAB-Map Rtabmap/LoopThr)."""
+
+    loop_ratio: float = Field(0.0, ge=0.0, le=1.0)
+    """Hypothesis ratio test: reject when the hypothesis value is below this ratio times the previous one
+    (RTAB-Map Rtabmap/LoopRatio; 0 disables)."""
+
+    prediction_lc: tuple[float, ...] = DEFAULT_PREDICTION_LC
+    """Transition model (RTAB-Map Bayes/PredictionLC): [location -> virtual place, location -> itself,
+    neighbours at graph depth 1, 2, ...]."""
+
+    virtual_place_prior: float = Field(0.9, ge=0.0, le=1.0)
+    """Probability that a 'new place' stays a new place (RTAB-Map Bayes/VirtualPlacePriorThr)."""
+
+    min_inliers: int = Field(20, ge=4)
+    """Minimum PnP RANSAC inliers to accept a loop closure (RTAB-Map Vis/MinInliers)."""
+
+    pnp_reprojection_error: float = Field(2.0, gt=0.0)
+    """PnP RANSAC inlier threshold in pixels (RTAB-Map Vis/PnPReprojError)."""
+
+    pnp_iterations: int = Field(300, ge=10)
+    """PnP RANSAC iterations (RTAB-Map Vis/Iterations)."""
+
+    pnp_max_depth: float = Field(0.0, ge=0.0)
+    """Ignore candidate 3D points farther than this (metres, 0 = no limit; RTAB-Map Vis/MaxDepth)."""
+
+
+class MemoryConfig(ConfigModel):
+    """Memory management: short-term memory, working memory, long-term memory (RTAB-Map Mem/* parameters)."""
+
+    stm_size: int = Field(10, ge=1)
+    """Number of most recent locations kept in the short-term memory, never loop candidates (Mem/STMSize)."""
+
+    rehearsal_similarity: float = Field(0.6, ge=0.0, le=1.0)
+    """Similarity of word sets above which a new location is merged with the previous one (weight update,
+    Mem/RehearsalSimilarity)."""
+
+    max_wm_size: int = Field(0, ge=0)
+    """Maximum number of locations in the working memory before transfers to LTM (0 = unlimited;
+    RTAB-Map Rtabmap/MemoryThr)."""
+
+    time_threshold_ms: float = Field(0.0, ge=0.0)
+    """Processing-time budget per keyframe in milliseconds; above it, locations are transferred from WM to LTM
+    (0 = no budget; RTAB-Map Rtabmap/TimeThr)."""
+
+    max_retrieved: int = Field(2, ge=0)
+    """Maximum number of locations retrieved from LTM around the highest hypothesis per keyframe
+    (RTAB-Map Rtabmap/MaxRetrieved)."""
+
+    keep_images: bool = True
+    """Keep the compressed RGB/depth images given with a location (stored in map.db; Mem/ImageKept)."""
