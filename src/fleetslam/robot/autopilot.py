@@ -1,0 +1,188 @@
+"""Autopilot (pure): named routes followed by a pure-pursuit controller that outputs (v, ω) like an operator.
+
+Routes are waypoint lists in a route frame whose origin is the robot's start pose (x forward, y left), so
+they fit any world; :meth:`Route.in_world` places them at a start pose. The simulator may register routes in
+plant coordinates with :func:`register_route` (``frame="world"``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+from fleetslam.errors import ConfigError
+from fleetslam.geometry import normalize_angle
+
+Point = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Route:
+    """A named list of waypoints (m); ``closed`` routes return to their first waypoint."""
+
+    name: str
+    waypoints: tuple[Point, ...]
+    closed: bool = False
+    frame: Literal["start", "world"] = "start"
+    """"start": relative to the robot's start pose; "world": already in plant coordinates."""
+
+    def in_world(self, start: tuple[float, float, float]) -> list[Point]:
+        """Waypoints in world coordinates for a robot starting at (x, y, θ); closed routes end at the start."""
+        points = list(self.waypoints) + ([self.waypoints[0]] if self.closed else [])
+        if self.frame == "world":
+            return points
+        x0, y0, th0 = start
+        c, s = math.cos(th0), math.sin(th0)
+        return [(x0 + c * px - s * py, y0 + s * px + c * py) for px, py in points]
+
+
+def _square(side: float) -> tuple[Point, ...]:
+    return ((0.0, 0.0), (side, 0.0), (side, side), (0.0, side))
+
+
+def _survey(length: float, width: float, lanes: int) -> tuple[Point, ...]:
+    """A lawn-mower pattern: lanes along x, stepping left by width/(lanes-1)."""
+    points: list[Point] = []
+    for lane in range(lanes):
+        y = width * lane / max(lanes - 1, 1)
+        ends = [(0.0, y), (length, y)]
+        points.extend(ends if lane % 2 == 0 else ends[::-1])
+    return tuple(points)
+
+
+ROUTES: dict[str, Route] = {
+    "square": Route("square", _square(2.0), closed=True),
+    "loop": Route(
+        "loop",
+        ((0.0, 0.0), (4.0, 0.0), (5.0, 1.0), (5.0, 3.0), (4.0, 4.0), (0.0, 4.0), (-1.0, 3.0), (-1.0, 1.0)),
+        closed=True,
+    ),
+    "survey": Route("survey", _survey(5.0, 3.0, 4)),
+    "line": Route("line", ((0.0, 0.0), (3.0, 0.0))),
+}
+"""The route registry: name → route. Extend with :func:`register_route`."""
+
+
+def register_route(route: Route) -> None:
+    """Add or replace a route in :data:`ROUTES`."""
+    ROUTES[route.name] = route
+
+
+def get_route(name: str, routes: Mapping[str, Route] | None = None) -> Route:
+    """The route called ``name``; raises ConfigError listing the known ones."""
+    table = ROUTES if routes is None else routes
+    try:
+        return table[name]
+    except KeyError as err:
+        raise ConfigError(f"route {name!r} is unknown; known routes: {', '.join(sorted(table))}") from err
+
+
+class Autopilot:
+    """Pure pursuit along a polyline of world waypoints.
+
+    Args:
+        waypoints: at least one (x, y) point in the odometry/world frame.
+        lookahead: distance to the pursued point on the path, m.
+        max_speed: cruise speed, m/s.
+        max_omega: largest yaw rate commanded, rad/s.
+        arrival_tolerance: distance to the last waypoint at which the route is done, m.
+        turn_slowdown: speed divides by (1 + turn_slowdown·|curvature|) to slow in turns, m.
+        rotate_in_place_angle: if the pursued point is further off the heading than this, turn on the spot.
+    """
+
+    def __init__(
+        self,
+        waypoints: Sequence[Point],
+        *,
+        lookahead: float = 0.6,
+        max_speed: float = 0.5,
+        max_omega: float = 1.2,
+        arrival_tolerance: float = 0.15,
+        turn_slowdown: float = 1.0,
+        rotate_in_place_angle: float = math.radians(75.0),
+    ) -> None:
+        if not waypoints:
+            raise ConfigError("autopilot: the route has no waypoints")
+        if lookahead <= 0.0:
+            raise ConfigError(f"autopilot: lookahead must be > 0, got {lookahead}")
+        self.waypoints = [(float(x), float(y)) for x, y in waypoints]
+        self.lookahead = lookahead
+        self.max_speed = max_speed
+        self.max_omega = max_omega
+        self.arrival_tolerance = arrival_tolerance
+        self.turn_slowdown = turn_slowdown
+        self.rotate_in_place_angle = rotate_in_place_angle
+        self._segment = 0
+        self.done = False
+
+    @classmethod
+    def for_route(cls, route: Route, start: tuple[float, float, float], **options: float) -> Autopilot:
+        """An autopilot following ``route`` placed at the start pose (x, y, θ)."""
+        return cls(route.in_world(start), **options)
+
+    @property
+    def segment(self) -> int:
+        """Index of the path segment the robot is on (progress along the route)."""
+        return self._segment
+
+    def _advance(self, px: float, py: float) -> None:
+        """Move progress forward while the robot is past the end of its current segment."""
+        while self._segment < len(self.waypoints) - 2:
+            ax, ay = self.waypoints[self._segment]
+            bx, by = self.waypoints[self._segment + 1]
+            dx, dy = bx - ax, by - ay
+            length2 = dx * dx + dy * dy
+            t = ((px - ax) * dx + (py - ay) * dy) / length2 if length2 > 0 else 1.0
+            if t < 1.0 and math.hypot(bx - px, by - py) > self.lookahead:
+                break
+            self._segment += 1
+
+    def _target(self, px: float, py: float) -> Point:
+        """The first point on the path from the current segment at distance ≥ lookahead, else the end."""
+        for i in range(self._segment, len(self.waypoints) - 1):
+            ax, ay = self.waypoints[i]
+            bx, by = self.waypoints[i + 1]
+            dx, dy = bx - ax, by - ay
+            fx, fy = ax - px, ay - py
+            a = dx * dx + dy * dy
+            if a == 0.0:
+                continue
+            b = 2.0 * (fx * dx + fy * dy)
+            c = fx * fx + fy * fy - self.lookahead**2
+            disc = b * b - 4.0 * a * c
+            if disc < 0.0:
+                continue
+            t = (-b + math.sqrt(disc)) / (2.0 * a)
+            if 0.0 <= t <= 1.0:
+                return ax + t * dx, ay + t * dy
+        return self.waypoints[-1]
+
+    def step(self, pose: tuple[float, float, float], now: float) -> tuple[float, float, bool]:
+        """(v, ω, done) for the robot at pose (x, y, θ) at time ``now`` (s)."""
+        del now  # pure pursuit is memoryless apart from progress; kept for a uniform driver interface
+        if self.done:
+            return 0.0, 0.0, True
+        px, py, theta = pose
+        self._advance(px, py)
+        end = self.waypoints[-1]
+        if self._segment >= len(self.waypoints) - 2 and math.hypot(end[0] - px, end[1] - py) < self.arrival_tolerance:
+            self.done = True
+            return 0.0, 0.0, True
+        tx, ty = self._target(px, py)
+        alpha = normalize_angle(math.atan2(ty - py, tx - px) - theta)
+        if abs(alpha) > self.rotate_in_place_angle:
+            return 0.0, math.copysign(self.max_omega, alpha), False
+        distance = max(math.hypot(tx - px, ty - py), 1e-9)
+        curvature = 2.0 * math.sin(alpha) / distance
+        v = self.max_speed / (1.0 + self.turn_slowdown * abs(curvature))
+        # slow down on the final approach so the robot stops on the last waypoint
+        to_end = math.hypot(end[0] - px, end[1] - py)
+        if self._segment >= len(self.waypoints) - 2:
+            v = min(v, max(to_end, 0.1 * self.max_speed))
+        omega = curvature * v
+        if abs(omega) > self.max_omega:
+            omega = math.copysign(self.max_omega, omega)
+            v = omega / curvature
+        return v, omega, False

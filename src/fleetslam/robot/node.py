@@ -1,0 +1,175 @@
+"""The base controller node: cmd_vel in; odom, joint_states and tf out; an e_stop service.
+
+Wraps the pure :class:`~fleetslam.robot.controller.BaseController` around any
+:class:`~fleetslam.robot.interfaces.WheelInterface` (the simulator passes its own in-process). Time comes from
+``clock`` (seconds): the node's clock by default (wall time, or /clock with ``use_sim_time``); the simulator
+passes its simulated time and calls :meth:`BaseControllerNode.step` itself after each physics step instead of
+letting the node run its own timer.
+
+Topics (relative to the node's namespace, e.g. ``/c3po``):
+``cmd_vel`` geometry_msgs/msg/Twist and geometry_msgs/msg/TwistStamped (two subscriptions, one per type);
+``odom`` nav_msgs/msg/Odometry; ``joint_states`` sensor_msgs/msg/JointState; ``tf`` tf2_msgs/msg/TFMessage
+(``odom`` → ``base_link``; per agent, as in docs/architecture.md, so the frame names need no prefix);
+service ``e_stop`` std_srvs/srv/SetBool (true engages, false releases).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware.typesys import get_type, header, ns_from_stamp
+from fleetslam.robot.config import RobotConfig
+from fleetslam.robot.controller import BaseController, ControllerOutput
+from fleetslam.robot.interfaces import WheelInterface
+
+log = logging.getLogger(__name__)
+
+
+class BaseControllerNode:
+    """Runs a base controller on a middleware node.
+
+    Args:
+        node: the node to publish and subscribe on.
+        wheels: the drive.
+        config: robot parameters (defaults if None).
+        clock: seconds now; default ``node.now_ns() / 1e9``.
+        run_timer: run the control loop on a timer at ``config.control_rate``; False when the owner calls
+            :meth:`step` (the simulator).
+        frame_prefix: prefix of the odom/base_link frame ids (e.g. ``"c3po/"`` for a shared tf tree).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        wheels: WheelInterface,
+        *,
+        config: RobotConfig | None = None,
+        clock: Callable[[], float] | None = None,
+        run_timer: bool = True,
+        frame_prefix: str = "",
+    ) -> None:
+        self.node = node
+        self.wheels = wheels
+        self.config = config if config is not None else RobotConfig()
+        self.controller = BaseController(self.config)
+        self.clock: Callable[[], float] = clock if clock is not None else (lambda: node.now_ns() * 1e-9)
+        self.odom_frame = frame_prefix + self.config.odom_frame
+        self.base_frame = frame_prefix + self.config.base_frame
+        self._lock = threading.Lock()
+        self._last_publish: float | None = None
+        self.last_output: ControllerOutput | None = None
+        self._types = {
+            name: get_type(name)
+            for name in (
+                "nav_msgs/msg/Odometry",
+                "geometry_msgs/msg/PoseWithCovariance",
+                "geometry_msgs/msg/TwistWithCovariance",
+                "geometry_msgs/msg/Pose",
+                "geometry_msgs/msg/Point",
+                "geometry_msgs/msg/Quaternion",
+                "geometry_msgs/msg/Twist",
+                "geometry_msgs/msg/Vector3",
+                "geometry_msgs/msg/Transform",
+                "geometry_msgs/msg/TransformStamped",
+                "sensor_msgs/msg/JointState",
+                "tf2_msgs/msg/TFMessage",
+                "std_srvs/srv/SetBool_Response",
+            )
+        }
+        self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=10))
+        self.joint_pub = node.create_publisher("sensor_msgs/msg/JointState", "joint_states", QoSProfile(depth=10))
+        self.tf_pub = (
+            node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=100))
+            if self.config.publish_tf
+            else None
+        )
+        node.create_subscription("geometry_msgs/msg/Twist", "cmd_vel", self._on_twist, QoSProfile(depth=1))
+        node.create_subscription(
+            "geometry_msgs/msg/TwistStamped", "cmd_vel", self._on_twist_stamped, QoSProfile(depth=1)
+        )
+        node.create_service("std_srvs/srv/SetBool", "e_stop", self._on_estop)
+        self.timer = node.create_timer(1.0 / self.config.control_rate, self._on_timer) if run_timer else None
+
+    # -- inputs ------------------------------------------------------------------------------------------------
+    def _on_twist(self, msg: Any) -> None:
+        now = self.clock()
+        with self._lock:
+            self.controller.command(float(msg.linear.x), float(msg.angular.z), now, now)
+
+    def _on_twist_stamped(self, msg: Any) -> None:
+        now = self.clock()
+        stamp_ns = ns_from_stamp(msg.header.stamp)
+        stamp = now if stamp_ns == 0 else stamp_ns * 1e-9
+        with self._lock:
+            self.controller.command(float(msg.twist.linear.x), float(msg.twist.angular.z), stamp, now)
+
+    def _on_estop(self, request: Any) -> Any:
+        engaged = bool(request.data)
+        with self._lock:
+            self.controller.estop(engaged)
+        state = "engaged" if engaged else "released"
+        return self._types["std_srvs/srv/SetBool_Response"](success=True, message=f"e-stop {state}")
+
+    def _on_timer(self) -> None:
+        self.step(self.clock())
+
+    # -- control -----------------------------------------------------------------------------------------------
+    def step(self, now: float) -> ControllerOutput:
+        """One control step at ``now`` (s); publishes odometry, joint states and tf at ``odom_rate``."""
+        with self._lock:
+            output = self.controller.update(now, self.wheels)
+        self.last_output = output
+        period = 1.0 / self.config.odom_rate
+        # a small tolerance keeps a 50 Hz loop from skipping every other 50 Hz publication through jitter
+        if self._last_publish is None or now - self._last_publish >= 0.9 * period or now < self._last_publish:
+            self._last_publish = now
+            self.publish(output, now)
+        return output
+
+    def publish(self, output: ControllerOutput, now: float) -> None:
+        """Publish odom, joint_states and tf for ``output`` stamped ``now``."""
+        t = self._types
+        stamp_ns = round(now * 1e9)
+        odom = output.odometry
+        quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(odom.theta / 2), w=math.cos(odom.theta / 2))
+        vec3 = t["geometry_msgs/msg/Vector3"]
+        msg = t["nav_msgs/msg/Odometry"](
+            header=header(self.odom_frame, stamp_ns),
+            child_frame_id=self.base_frame,
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](x=odom.x, y=odom.y, z=0.0), orientation=quat
+                ),
+                covariance=np.ascontiguousarray(odom.pose_covariance, dtype=np.float64).reshape(36),
+            ),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=t["geometry_msgs/msg/Twist"](
+                    linear=vec3(x=odom.v, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=odom.omega)
+                ),
+                covariance=np.ascontiguousarray(odom.twist_covariance, dtype=np.float64).reshape(36),
+            ),
+        )
+        self.odom_pub.publish(msg)
+        self.joint_pub.publish(
+            t["sensor_msgs/msg/JointState"](
+                header=header("", stamp_ns),
+                name=[self.config.left_wheel_joint, self.config.right_wheel_joint],
+                position=np.array(output.joint_positions, dtype=np.float64),
+                velocity=np.array(output.joint_velocities, dtype=np.float64),
+                effort=np.array(output.efforts, dtype=np.float64),
+            )
+        )
+        if self.tf_pub is not None:
+            transform = t["geometry_msgs/msg/TransformStamped"](
+                header=header(self.odom_frame, stamp_ns),
+                child_frame_id=self.base_frame,
+                transform=t["geometry_msgs/msg/Transform"](translation=vec3(x=odom.x, y=odom.y, z=0.0), rotation=quat),
+            )
+            self.tf_pub.publish(t["tf2_msgs/msg/TFMessage"](transforms=[transform]))

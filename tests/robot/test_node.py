@@ -1,0 +1,79 @@
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from fleetslam.middleware import Context, Node
+from fleetslam.middleware.typesys import get_type, header
+from fleetslam.robot.config import RobotConfig
+from fleetslam.robot.drive import MotorModelDrive
+from fleetslam.robot.node import BaseControllerNode
+
+from ..support import wait_until
+
+Twist = get_type("geometry_msgs/msg/Twist")
+TwistStamped = get_type("geometry_msgs/msg/TwistStamped")
+Vector3 = get_type("geometry_msgs/msg/Vector3")
+SetBoolRequest = get_type("std_srvs/srv/SetBool_Request")
+
+
+def _twist(v: float, omega: float) -> Any:
+    return Twist(linear=Vector3(x=v, y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=omega))
+
+
+def _drive_for(pub: Any, msg: Any, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pub.publish(msg)
+        time.sleep(0.05)
+
+
+def test_base_controller_node_end_to_end(make_context: Callable[..., Context]) -> None:
+    robot_ctx = make_context(namespace="/c3po")
+    operator_ctx = make_context()
+    config = RobotConfig(cmd_vel_timeout=0.3)
+    with Node("base_controller", context=robot_ctx) as robot_node, Node("operator", context=operator_ctx) as op:
+        controller_node = BaseControllerNode(robot_node, MotorModelDrive.from_config(config), config=config)
+        odoms: list[Any] = []
+        joints: list[Any] = []
+        tfs: list[Any] = []
+        op.create_subscription("nav_msgs/msg/Odometry", "/c3po/odom", odoms.append)
+        op.create_subscription("sensor_msgs/msg/JointState", "/c3po/joint_states", joints.append)
+        op.create_subscription("tf2_msgs/msg/TFMessage", "/c3po/tf", tfs.append)
+        cmd = op.create_publisher("geometry_msgs/msg/Twist", "/c3po/cmd_vel")
+        cmd_stamped = op.create_publisher("geometry_msgs/msg/TwistStamped", "/c3po/cmd_vel")
+        estop = op.create_client("std_srvs/srv/SetBool", "/c3po/e_stop")
+        assert wait_until(lambda: len(odoms) > 5 and cmd.matched_subscriptions > 0, 10.0)
+
+        _drive_for(cmd, _twist(0.4, 0.3), 1.2)
+        last = odoms[-1]
+        assert last.header.frame_id == "odom" and last.child_frame_id == "base_link"
+        assert last.twist.twist.linear.x > 0.3
+        assert last.pose.pose.position.x > 0.1
+        assert len(last.pose.covariance) == 36
+        assert list(joints[-1].name) == ["left_wheel_joint", "right_wheel_joint"]
+        assert joints[-1].velocity[1] > joints[-1].velocity[0]  # turning left: right wheel faster
+        assert tfs[-1].transforms[0].child_frame_id == "base_link"
+
+        # commands stop: the watchdog brakes the robot (0.3 s timeout + 0.4/1.5 s braking)
+        assert wait_until(lambda: abs(odoms[-1].twist.twist.linear.x) < 0.02, 2.0)
+
+        # a TwistStamped that is already too old on arrival is dropped
+        stale = TwistStamped(header=header("base_link", time.time_ns() - 2_000_000_000), twist=_twist(0.4, 0.0))
+        dropped_before = controller_node.controller.dropped_commands
+        cmd_stamped.publish(stale)
+        assert wait_until(lambda: controller_node.controller.dropped_commands > dropped_before, 3.0)
+
+        # a fresh TwistStamped drives; the e-stop stops and refuses further commands until released
+        fresh = TwistStamped(header=header("base_link", time.time_ns()), twist=_twist(0.3, 0.0))
+        cmd_stamped.publish(fresh)
+        assert wait_until(lambda: odoms[-1].twist.twist.linear.x > 0.05, 2.0)
+        response = estop.call(SetBoolRequest(data=True), timeout=5.0)
+        assert response.success
+        _drive_for(cmd, _twist(0.4, 0.0), 0.8)
+        assert abs(odoms[-1].twist.twist.linear.x) < 0.05
+        assert controller_node.last_output is not None and controller_node.last_output.estopped
+        assert estop.call(SetBoolRequest(data=False), timeout=5.0).success
+        _drive_for(cmd, _twist(0.4, 0.0), 0.8)
+        assert odoms[-1].twist.twist.linear.x > 0.2
