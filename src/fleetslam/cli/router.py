@@ -1,4 +1,4 @@
-"""`fleetslam router`: run the fleet's Zenoh router (the discovery service) until Ctrl-C."""
+"""`fleetslam router`: run the fleet's Zenoh router (the discovery service, rmw_zenohd's role) until Ctrl-C."""
 
 from __future__ import annotations
 
@@ -30,4 +30,5 @@ def run(args: argparse.Namespace) -> int:
                 pass
         except KeyboardInterrupt:
             pass
+    print("router stopped", flush=True)
     return 0

@@ -15,7 +15,8 @@ Environment (explicit constructor arguments win):
 - ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off.
 
 The default session is rmw_zenoh's: peer mode connected to the router, multicast scouting off, gossip on,
-timestamping on, queries time out after 600 s. Without a reachable router the context raises
+timestamping on, queries time out after 600 s (plus ``scouting/delay`` 0: open() does not idle 500 ms, the
+context waits for the router itself). Without a reachable router the context raises
 :class:`~fleetslam.errors.RouterUnreachableError` at once, saying how to start one.
 """
 
@@ -33,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from fleetslam.errors import ConfigError, RouterUnreachableError
+from fleetslam.errors import ConfigError, MiddlewareError, RouterUnreachableError
 from fleetslam.middleware.names import domain_id_from_env, namespace_from_env, normalize_namespace
 
 if TYPE_CHECKING:
@@ -100,6 +101,8 @@ def session_config(
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
         config.insert_json5("scouting/gossip/enabled", "true")
+        # Zenoh's default waits 500 ms in open() for scouting; we wait for the router explicitly instead.
+        config.insert_json5("scouting/delay", "0")
         config.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
         config.insert_json5("queries_default_timeout", "600000")
         connect = connect or []
@@ -152,6 +155,7 @@ class Context:
     Raises:
         RouterUnreachableError: no router answered in time.
         ConfigError: an environment variable or the session config file is invalid.
+        MiddlewareError: the session cannot be opened (e.g. the listen endpoint is taken).
     """
 
     def __init__(
@@ -186,10 +190,15 @@ class Context:
         )
         self.router_endpoints = endpoints_of(config, "connect/endpoints")
         self.listen_endpoints = endpoints_of(config, "listen/endpoints")
+        mode = json.loads(config.get_json("mode") or '"peer"') or "peer"
         try:
             self.session = zenoh.open(config)
-        except Exception as err:
-            raise RouterUnreachableError(self._unreachable_message(f"cannot open the session: {err}")) from err
+        except Exception as err:  # e.g. a listen endpoint that is taken or not an address of this host
+            if mode == "client":  # a client's open() fails when it cannot reach a router
+                raise RouterUnreachableError(self._unreachable_message(str(err))) from err
+            raise MiddlewareError(
+                f"cannot open a Zenoh session (connect {self.router_endpoints}, listen {self.listen_endpoints}): {err}"
+            ) from err
         self.zid = str(self.session.info.zid())
         self._ids = itertools.count()
         self._ids_lock = threading.Lock()
@@ -199,7 +208,6 @@ class Context:
         self._graph_lock = threading.Lock()
         if router_timeout_s is None:
             router_timeout_s = router_timeout_from_env(environ)
-        mode = config.get_json("mode").strip('"')
         if router_timeout_s >= 0 and mode != "router":
             self._wait_for_router(router_timeout_s)
         log.debug("context %s: connect %s, listen %s", self.zid, self.router_endpoints, self.listen_endpoints)

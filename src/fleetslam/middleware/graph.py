@@ -97,6 +97,8 @@ class Graph:
             return
         event = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
         with self._changed:
+            # The initial query and the subscriber's history may both report a token: notify changes only.
+            changed = (key not in self._tokens) if event == "put" else (key in self._tokens)
             if event == "put":
                 self._tokens[key] = token
                 if token.kind is not EntityKind.NODE:
@@ -105,6 +107,8 @@ class Graph:
                 self._tokens.pop(key, None)
                 self._by_gid.pop(token.gid, None)
             self._changed.notify_all()
+        if not changed:
+            return
         for listener in list(self._listeners):
             try:
                 listener(event, token)
@@ -124,9 +128,7 @@ class Graph:
 
     def nodes(self) -> list[NodeInfo]:
         """Every node, sorted by name then zid."""
-        found = [
-            NodeInfo(t.namespace, t.node_name, t.zid, t.nid) for t in self.tokens() if t.kind is EntityKind.NODE
-        ]
+        found = [NodeInfo(t.namespace, t.node_name, t.zid, t.nid) for t in self.tokens() if t.kind is EntityKind.NODE]
         return sorted(found, key=lambda n: (n.fq_name, n.zid, n.nid))
 
     def node_names(self) -> list[tuple[str, str]]:

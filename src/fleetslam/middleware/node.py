@@ -1,14 +1,22 @@
 """Nodes: publishers, subscriptions, services, clients, timers and typed parameters over Zenoh, rmw_zenoh style.
 
-Threading: every node owns one executor thread. All of a node's callbacks (subscriptions, service handlers,
-timers) run on it, one at a time, in arrival order, so a node's state needs no locks. Samples are received and
-deserialized on Zenoh's threads, counted in the statistics there, and queued per subscription (KEEP_LAST
-depth: the oldest is dropped when the executor falls behind). Callbacks of different nodes run concurrently.
-Publishing is thread-safe and may happen from any thread.
+Threading:
+
+- every node owns one executor thread (named ``executor:<fq node name>``). All of a node's callbacks
+  (subscriptions, service handlers, timers, :meth:`Node.call_soon`) run on it, one at a time, in arrival order,
+  so a node's state needs no locks. Callbacks of different nodes run concurrently.
+- samples are received, checked and counted in the statistics on Zenoh's threads, and queued per subscription
+  (KEEP_LAST depth: the oldest is dropped when the executor falls behind; KEEP_ALL: unbounded). They are
+  deserialized on the executor just before their callback, so samples dropped by KEEP_LAST cost no decoding.
+- service requests are decoded on Zenoh's threads; the handler runs on the executor and the reply is sent from
+  there.
+- each timer has a small thread that only posts ticks; a tick is skipped while the previous one still waits.
+- publishing and :meth:`Client.call` are thread-safe and may happen from any thread; ``call`` blocks its caller,
+  so never call a service of the same node from one of its own callbacks.
 
 Robustness: a malformed payload, a sample without attachment, an unknown type, a payload over the size limit or
-an exception inside a callback is dropped, counted (``error_msgs`` in /statistics) and logged at a bounded rate;
-the node keeps running.
+an exception inside a callback is dropped, counted (``error_msgs`` in /statistics) and logged at a bounded rate
+(the first 3 per cause, then one line per 10 s with the number suppressed); the node keeps running.
 """
 
 from __future__ import annotations
@@ -18,12 +26,12 @@ import inspect
 import itertools
 import logging
 import queue
+import struct
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import zenoh
 
@@ -41,7 +49,7 @@ from fleetslam.middleware.names import (
 )
 from fleetslam.middleware.statistics import SubscriptionStatistics
 from fleetslam.middleware.wire import (
-    Attachment,
+    ATTACHMENT_SIZE,
     EntityKind,
     LivelinessToken,
     QoSProfile,
@@ -59,17 +67,24 @@ STATISTICS_TOPIC = "/statistics"
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 
 
-@dataclass(frozen=True)
-class MessageInfo:
-    """Metadata of a received message."""
+class MessageInfo(NamedTuple):
+    """Metadata of a received message (a named tuple: cheap to make for every sample)."""
 
     source_timestamp_ns: int
+    """When the publisher sent it (attachment), ns since the epoch."""
     received_timestamp_ns: int
+    """When this process received it, ns since the epoch."""
     sequence_number: int
+    """The publisher's sequence number, from 1."""
     publisher_gid: bytes
+    """16-byte GID of the publisher (the graph's ``EndpointInfo.gid``)."""
     size: int
+    """Payload size in bytes (CDR with header)."""
     topic: str
     type_name: str
+
+
+_ATTACHMENT = struct.Struct("<qqB")
 
 
 class _RateLimitedLogger:
@@ -218,7 +233,7 @@ class Publisher(_Entity):
         """How many subscriptions of this topic and type the graph knows (0 until discovery has seen them)."""
         return sum(1 for i in self.node.context.graph.subscriptions_info(self.topic) if i.topic_type == self.type_name)
 
-    def publish_raw(self, payload: bytes, *, source_timestamp_ns: int | None = None) -> None:
+    def publish_raw(self, payload: bytes | bytearray, *, source_timestamp_ns: int | None = None) -> None:
         """Publish already serialized CDR bytes (with header); the attachment gets the next sequence number."""
         if self._destroyed:
             raise MiddlewareError(f"publisher of {self.topic} was destroyed")
@@ -276,6 +291,10 @@ class Subscription(_Entity):
         self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
             maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
         )
+        # One executor post per queued sample: the executor's queue stays bounded by the KEEP_LAST depth.
+        self._pending_lock = threading.Lock()
+        self.queue_overflows = 0
+        """Samples dropped from the local queue because the executor fell behind (KEEP_LAST)."""
         self.statistics = SubscriptionStatistics(time.time_ns())
         self.publisher_types: dict[bytes, str] = {}
         session = node.context.session
@@ -324,22 +343,31 @@ class Subscription(_Entity):
             )
 
     def _receive(self, sample: zenoh.Sample) -> None:
+        # Hot path (every sample, on a Zenoh thread): checks, statistics and queueing only. Deserialization waits
+        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding.
         received = time.time_ns()
         errors = self.node._error_log
-        attachment_bytes = sample.attachment
-        size = len(sample.payload)
-        if attachment_bytes is None:
+        attachment = sample.attachment
+        zpayload = sample.payload
+        size = len(zpayload)
+        if attachment is None:
             self.statistics.on_error(None, size)
             errors.warning(f"{self.topic}:noatt", "%s: dropped a sample without attachment", self.topic)
             return
-        try:
-            attachment: Attachment = decode_attachment(attachment_bytes.to_bytes())
-        except MessageError as err:
-            self.statistics.on_error(None, size)
-            errors.warning(f"{self.topic}:att", "%s: dropped a sample: %s", self.topic, err)
-            return
+        raw_attachment = attachment.to_bytes()
+        if len(raw_attachment) == ATTACHMENT_SIZE and raw_attachment[16] == 16:
+            seq, stamp, _ = _ATTACHMENT.unpack_from(raw_attachment)
+            gid = raw_attachment[17:]
+        else:
+            try:
+                decoded = decode_attachment(raw_attachment)  # also the labelled form of Jazzy ≤ 0.2.3
+            except MessageError as err:
+                self.statistics.on_error(None, size)
+                errors.warning(f"{self.topic}:att", "%s: dropped a sample: %s", self.topic, err)
+                return
+            seq, stamp, gid = decoded.sequence_number, decoded.source_timestamp_ns, decoded.gid
         if size > self.max_payload_bytes:
-            self.statistics.on_error(attachment.gid, size)
+            self.statistics.on_error(gid, size)
             errors.warning(
                 f"{self.topic}:size",
                 "%s: dropped a %d-byte sample over the %d-byte limit",
@@ -353,39 +381,34 @@ class Subscription(_Entity):
             try:
                 type_name = parse_topic_key(str(sample.key_expr))[2]
             except MessageError as err:
-                self.statistics.on_error(attachment.gid, size)
+                self.statistics.on_error(gid, size)
                 errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
                 return
-        payload = sample.payload.to_bytes()
+            self.publisher_types[gid] = type_name
+        self.statistics.on_sample(gid, seq, stamp, received, size)
+        info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
+        payload = zpayload.to_bytes()
+        with self._pending_lock:
+            full = len(self._pending) == self._pending.maxlen
+            self._pending.append((payload, info))  # drops the oldest when full; its post serves this one
+            if full:
+                self.queue_overflows += 1
+        if not full:
+            self.node._executor.post(self._dispatch)
+
+    def _dispatch(self) -> None:
+        with self._pending_lock:
+            if not self._pending:
+                return
+            payload, info = self._pending.popleft()
         message: Any = payload
         if not self.raw:
             try:
-                message = typesys.deserialize(payload, type_name)
+                message = typesys.deserialize(payload, info.type_name)
             except MessageError as err:
-                self.statistics.on_error(attachment.gid, size)
-                errors.warning(f"{self.topic}:cdr", "%s: dropped a malformed sample: %s", self.topic, err)
+                self.statistics.on_malformed(info.publisher_gid)
+                self.node._error_log.warning(f"{self.topic}:cdr", "%s: dropped a malformed sample: %s", self.topic, err)
                 return
-        self.publisher_types[attachment.gid] = type_name
-        self.statistics.on_sample(
-            attachment.gid, attachment.sequence_number, attachment.source_timestamp_ns, received, size
-        )
-        info = MessageInfo(
-            attachment.source_timestamp_ns,
-            received,
-            attachment.sequence_number,
-            attachment.gid,
-            size,
-            self.topic,
-            type_name,
-        )
-        self._pending.append((message, info))
-        self.node._executor.post(self._dispatch)
-
-    def _dispatch(self) -> None:
-        try:
-            message, info = self._pending.popleft()
-        except IndexError:  # dropped by KEEP_LAST while queued
-            return
         try:
             if self._with_info:
                 self.callback(message, info)
@@ -422,6 +445,7 @@ class Service(_Entity):
         if query.attachment is None:
             errors.warning(f"{self.name}:noatt", "service %s: rejected a request without attachment", self.name)
             query.reply_err(b"request without attachment")
+            query.drop()  # finishes the query now; the client would otherwise wait for its timeout
             return
         try:
             attachment = decode_attachment(query.attachment.to_bytes())
@@ -432,6 +456,7 @@ class Service(_Entity):
         except MessageError as err:
             errors.warning(f"{self.name}:bad", "service %s: rejected a request: %s", self.name, err)
             query.reply_err(str(err).encode())
+            query.drop()
             return
 
         def answer() -> None:
@@ -480,10 +505,31 @@ class Client(_Entity):
         return self.node.context.graph.wait_for(lambda g: self.service_is_ready(), timeout_s)
 
     def call(self, request: object, timeout: float = 10.0) -> Any:
-        """Send a request and wait for its response; raises ServiceError on timeout or a server error."""
+        """Send a request and wait for its response; raises ServiceError on timeout or a server error.
+
+        Blocks the calling thread. A fresh session may not know the server's queryable yet: when a query finds
+        no server at all, the call waits (within ``timeout``) for one to appear in the graph and asks once more.
+        Don't call a service of the same node from one of its callbacks: the handler would wait for the executor
+        that the caller blocks.
+        """
+        deadline = time.monotonic() + timeout
+        payload = typesys.serialize(request, self.request_type)
+        for attempt in range(2):
+            found, response, errors = self._query(payload, max(0.05, deadline - time.monotonic()))
+            if found:
+                return response
+            remaining = deadline - time.monotonic()
+            if errors or attempt or remaining < 0.1:
+                break
+            if not self.wait_for_service(remaining):
+                break
+            time.sleep(0.02)  # the queryable's declaration travels just behind its token
+        detail = f": {'; '.join(errors)}" if errors else f" within {timeout} s (is a server running?)"
+        raise ServiceError(f"service {self.name} ({self.type_name}) gave no response{detail}")
+
+    def _query(self, payload: bytes, timeout: float) -> tuple[bool, Any, list[str]]:
         with self._lock:
             seq = next(self._sequence)
-        payload = typesys.serialize(request, self.request_type)
         replies = self.node.context.session.get(
             self.key,
             payload=payload,
@@ -499,13 +545,13 @@ class Client(_Entity):
                 continue
             sample = reply.ok
             try:
+                # rclcpp matches replies by the sequence number echoed in the attachment
                 if sample.attachment is None or decode_attachment(sample.attachment.to_bytes()).sequence_number != seq:
                     continue
-                return typesys.deserialize(sample.payload.to_bytes(), self.response_type)
+                return True, typesys.deserialize(sample.payload.to_bytes(), self.response_type), []
             except MessageError as err:
                 errors.append(str(err))
-        detail = f": {'; '.join(errors)}" if errors else f" within {timeout} s (is a server running?)"
-        raise ServiceError(f"service {self.name} ({self.type_name}) gave no response{detail}")
+        return False, None, errors
 
     def _undeclare(self) -> None:
         pass

@@ -39,6 +39,7 @@ def router_config(
         config.insert_json5("mode", '"router"')
         config.insert_json5("scouting/multicast/enabled", "false")
         config.insert_json5("scouting/gossip/enabled", "true")
+        config.insert_json5("scouting/delay", "0")  # nothing to scout for: don't idle 500 ms in open()
         config.insert_json5("timestamping/enabled", "true")
     if listen is not None:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))

@@ -69,57 +69,82 @@ class WindowReport:
 _NO_GID = b"\x00" * 16
 
 
+class _PublisherState:
+    """What a subscription remembers of one publisher across windows, and its current window."""
+
+    __slots__ = ("last_receive", "last_seq", "window")
+
+    def __init__(self) -> None:
+        self.last_seq: int | None = None
+        self.last_receive: int | None = None
+        self.window = PublisherWindow()
+
+
 class SubscriptionStatistics:
     """Statistics of one subscription, per publisher GID, over windows closed by :meth:`close_window`."""
 
     def __init__(self, now_ns: int) -> None:
         self._lock = threading.Lock()
         self._window_start = now_ns
-        self._windows: dict[bytes, PublisherWindow] = {}
-        self._last_seq: dict[bytes, int] = {}
-        self._last_receive: dict[bytes, int] = {}
+        self._publishers: dict[bytes, _PublisherState] = {}
         self.total_delivered = 0
         self.total_dropped = 0
         self.total_errors = 0
 
+    def _state(self, gid: bytes) -> _PublisherState:
+        state = self._publishers.get(gid)
+        if state is None:
+            state = self._publishers[gid] = _PublisherState()
+        return state
+
     def on_sample(self, gid: bytes, sequence_number: int, source_ns: int, receive_ns: int, size: int) -> None:
-        """Record a delivered sample."""
+        """Record a delivered sample (a sequence number above the last + 1 counts the gap as dropped)."""
         with self._lock:
-            window = self._windows.get(gid)
-            if window is None:
-                window = self._windows[gid] = PublisherWindow()
+            state = self._publishers.get(gid) or self._state(gid)
+            window = state.window
             window.delivered += 1
             window.traffic_bytes += size
             self.total_delivered += 1
-            previous = self._last_seq.get(gid)
-            if previous is not None and sequence_number > previous + 1:
-                gap = sequence_number - previous - 1
-                window.dropped += gap
-                self.total_dropped += gap
+            previous = state.last_seq
             if previous is None or sequence_number > previous:
-                self._last_seq[gid] = sequence_number
-            last = self._last_receive.get(gid)
-            if last is not None:
-                window.period.add(receive_ns - last)
-            self._last_receive[gid] = receive_ns
+                if previous is not None and sequence_number > previous + 1:
+                    gap = sequence_number - previous - 1
+                    window.dropped += gap
+                    self.total_dropped += gap
+                state.last_seq = sequence_number
+            if state.last_receive is not None:
+                window.period.add(receive_ns - state.last_receive)
+            state.last_receive = receive_ns
             window.age.add(receive_ns - source_ns)
 
     def on_error(self, gid: bytes | None, size: int = 0) -> None:
         """Record a sample that was dropped as malformed, oversized or unprocessable."""
         with self._lock:
-            key = gid or _NO_GID
-            window = self._windows.get(key)
-            if window is None:
-                window = self._windows[key] = PublisherWindow()
+            window = self._state(gid or _NO_GID).window
             window.errors += 1
             window.traffic_bytes += size
+            self.total_errors += 1
+
+    def on_malformed(self, gid: bytes) -> None:
+        """A sample counted by :meth:`on_sample` turned out undecodable: count it as an error instead."""
+        with self._lock:
+            window = self._state(gid).window
+            if window.delivered > 0:  # else it was delivered in the previous window; leave that report as sent
+                window.delivered -= 1
+                self.total_delivered -= 1
+            window.errors += 1
             self.total_errors += 1
 
     def close_window(self, now_ns: int) -> list[WindowReport]:
         """Reports of the window that ends now (only publishers with activity), and start a new window."""
         with self._lock:
-            windows, self._windows = self._windows, {}
             start, self._window_start = self._window_start, now_ns
+            windows = []
+            for gid, state in self._publishers.items():
+                w = state.window
+                if w.delivered or w.errors or w.dropped:
+                    windows.append((gid, w))
+                    state.window = PublisherWindow()
         return [
             WindowReport(
                 publisher_gid=gid,
@@ -136,5 +161,5 @@ class SubscriptionStatistics:
                 age_stddev_ns=w.age.stddev,
                 age_max_ns=w.age.maximum,
             )
-            for gid, w in windows.items()
+            for gid, w in windows
         ]

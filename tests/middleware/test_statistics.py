@@ -1,0 +1,113 @@
+import statistics as pystats
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from fleetslam.middleware import Context, Node
+from fleetslam.middleware.statistics import RunningStats, SubscriptionStatistics
+from fleetslam.middleware.typesys import get_type, ns_from_stamp, serialize
+from fleetslam.middleware.wire import encode_attachment, topic_key
+
+from ..support import wait_until
+
+String = get_type("std_msgs/msg/String")
+GID_A = bytes(range(16))
+GID_B = bytes(range(16, 32))
+
+
+def test_running_stats_matches_the_textbook_formulas() -> None:
+    values = [1e9 + v for v in np.random.default_rng(1).normal(0, 1e6, 500)]  # large offset: catastrophic for sums
+    stats = RunningStats()
+    for v in values:
+        stats.add(v)
+    assert stats.count == 500
+    assert abs(stats.mean - pystats.fmean(values)) < 1e-3
+    assert abs(stats.stddev - pystats.stdev(values)) / pystats.stdev(values) < 1e-9
+    assert stats.maximum == max(values)
+    single = RunningStats()
+    single.add(-5.0)
+    assert (single.mean, single.stddev, single.maximum) == (-5.0, 0.0, -5.0)
+
+
+def test_window_counts_gaps_periods_ages_per_publisher() -> None:
+    acc = SubscriptionStatistics(now_ns=0)
+    # publisher A: seq 1,2,5 at 10 ms period, each 2 ms old on arrival; B: seq 7,8 (its first seq is not a gap)
+    for seq, t_ms in ((1, 100), (2, 110), (5, 120)):
+        acc.on_sample(GID_A, seq, source_ns=(t_ms - 2) * 1_000_000, receive_ns=t_ms * 1_000_000, size=100)
+    acc.on_sample(GID_B, 7, source_ns=0, receive_ns=50_000_000, size=10)
+    acc.on_sample(GID_B, 8, source_ns=0, receive_ns=80_000_000, size=10)
+    acc.on_sample(GID_B, 8, source_ns=0, receive_ns=90_000_000, size=10)  # duplicate: no drop, no rewind
+    acc.on_error(GID_A, size=7)
+    acc.on_error(None)
+    reports = {r.publisher_gid: r for r in acc.close_window(now_ns=1_000_000_000)}
+    a, b, unknown = reports[GID_A], reports[GID_B], reports[bytes(16)]
+    assert (a.delivered, a.dropped, a.errors, a.traffic_bytes) == (3, 2, 1, 307)
+    assert (a.window_start_ns, a.window_stop_ns) == (0, 1_000_000_000)
+    assert a.period_mean_ns == 10_000_000 and a.period_stddev_ns == 0 and a.period_max_ns == 10_000_000
+    assert a.age_mean_ns == 2_000_000 and a.age_max_ns == 2_000_000
+    assert (b.delivered, b.dropped) == (3, 0) and b.period_max_ns == 30_000_000
+    assert (unknown.delivered, unknown.errors) == (0, 1)
+    assert (acc.total_delivered, acc.total_dropped, acc.total_errors) == (6, 2, 2)
+    # The next window starts where the last stopped, forgets the counts, but remembers sequence numbers.
+    acc.on_sample(GID_A, 7, source_ns=0, receive_ns=1_100_000_000, size=1)
+    (next_a,) = acc.close_window(now_ns=2_000_000_000)
+    assert next_a.window_start_ns == 1_000_000_000 and next_a.delivered == 1 and next_a.dropped == 1
+    assert acc.close_window(now_ns=3_000_000_000) == []
+
+
+def test_published_statistics_count_injected_gaps_and_positive_ages(
+    make_context: Callable[..., Context], raw_session: zenoh.Session
+) -> None:
+    listener = Node("listener", context=make_context("r2d2"), statistics_period_s=0.3)
+    reports: list[Any] = []
+    listener.create_subscription("fleetslam_msgs/msg/TopicStatistics", "/statistics", reports.append)
+    listener.create_subscription("std_msgs/msg/String", "/c3po/chatter", lambda m: None)
+    time.sleep(0.3)
+    key = topic_key(0, "/c3po/chatter", "std_msgs/msg/String")
+    payload = serialize(String(data="x"), "std_msgs/msg/String")
+    for seq in (1, 2, 5, 6, 10):  # gaps: 3,4 and 7,8,9 → 5 dropped
+        raw_session.put(key, payload, attachment=encode_attachment(seq, time.time_ns() - 2_000_000, GID_A))
+        time.sleep(0.01)
+
+    def chatter() -> list[Any]:
+        return [r for r in reports if r.topic == "/c3po/chatter"]
+
+    # The samples may straddle a window boundary: add the windows up.
+    assert wait_until(lambda: sum(r.delivered_msgs for r in chatter()) == 5, timeout_s=5)
+    windows = chatter()
+    assert sum(r.dropped_msgs for r in windows) == 5 and sum(r.error_msgs for r in windows) == 0
+    assert sum(r.traffic for r in windows) == 5 * len(payload)
+    for report in windows:
+        assert report.type == "std_msgs/msg/String"
+        assert (report.node_sub, report.agent_sub, report.agent_pub) == ("/r2d2/listener", "r2d2", "c3po")
+        assert report.node_pub == ""  # a raw session has no token: no publishing node to name
+        assert bytes(report.publisher_gid) == GID_A
+        assert 2_000_000 <= ns_from_stamp(report.stamp_age_mean) < 1_000_000_000
+        assert ns_from_stamp(report.stamp_age_max) >= ns_from_stamp(report.stamp_age_mean)
+        assert ns_from_stamp(report.window_stop) > ns_from_stamp(report.window_start)
+    busiest = max(windows, key=lambda r: r.delivered_msgs)
+    assert busiest.delivered_msgs >= 2 and 5_000_000 < ns_from_stamp(busiest.period_mean) < 500_000_000
+
+
+def test_statistics_name_the_publishing_node_and_can_be_turned_off(make_context: Callable[..., Context]) -> None:
+    talker = Node("talker", context=make_context("c3po"), statistics_period_s=0)
+    listener = Node("listener", context=make_context(), statistics_period_s=0.2)
+    quiet = Node("quiet", context=make_context(statistics=False), statistics_period_s=0.2)
+    reports = []
+    listener.create_subscription("fleetslam_msgs/msg/TopicStatistics", "/statistics", reports.append)
+    listener.create_subscription("std_msgs/msg/String", "/c3po/chatter", lambda m: None)
+    quiet.create_subscription("std_msgs/msg/String", "/c3po/chatter", lambda m: None)
+    pub = talker.create_publisher("std_msgs/msg/String", "chatter")
+    assert wait_until(lambda: pub.matched_subscriptions == 2)
+    for _ in range(5):
+        pub.publish(String(data="x"))
+        time.sleep(0.02)
+    assert wait_until(lambda: any(r.delivered_msgs for r in reports), timeout_s=5)
+    time.sleep(0.5)
+    assert {r.node_sub for r in reports} == {"/listener"}
+    assert {r.node_pub for r in reports} == {"/c3po/talker"}
+    assert sum(r.delivered_msgs for r in reports) == 5 and all(r.dropped_msgs == 0 for r in reports)
+    assert all(bytes(r.publisher_gid) == pub.gid for r in reports)
