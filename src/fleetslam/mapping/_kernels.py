@@ -1,0 +1,527 @@
+"""Numba kernels of the octree engine: OctoMap's exact ray keys in parallel, and an open-addressing voxel table.
+
+Only the ray tracing runs in parallel: on a shared 2-core machine every parallel region waits for a thread that
+may be descheduled, so the light passes (preparation, grid collection, table) stay serial.
+
+Arithmetic mirrors OctoMap 1.10 line by line where it matters for exactness: points and directions are float32
+(``point3d``), ray lengths float32, tMax/tDelta float64, keys ⌊c·(1/res)⌋ + 32768 in float64.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fleetslam.errors import MissingExtraError
+
+try:
+    from numba import njit, prange
+except ImportError as err:  # pragma: no cover - exercised only without the extra
+    raise MissingExtraError("numba", "mapping") from err
+
+TREE_MAX_VAL = 32768
+KEY_LIMIT = 65536
+EMPTY = np.uint64(0xFFFFFFFFFFFFFFFF)
+DBL_MAX = 1.7976931348623157e308
+
+
+@njit(cache=True, inline="always")
+def _coord_to_key(coordinate: float, factor: float) -> int:
+    scaled = math.floor(factor * coordinate)
+    if not (scaled >= -TREE_MAX_VAL and scaled < TREE_MAX_VAL):
+        return -1
+    return int(scaled) + TREE_MAX_VAL
+
+
+@njit(cache=True)
+def _ray_end(points, origin, maxrange, i):  # type: ignore[no-untyped-def]
+    """OctoMap computeUpdate's end point of ray i and whether its endpoint counts as occupied."""
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    dx = np.float32(px - ox)
+    dy = np.float32(py - oy)
+    dz = np.float32(pz - oz)
+    norm_sq = np.float32(np.float32(np.float32(dx * dx) + np.float32(dy * dy)) + np.float32(dz * dz))
+    norm = math.sqrt(np.float64(norm_sq))
+    if maxrange < 0.0 or norm <= maxrange:
+        return px, py, pz, True
+    # Cut at maxrange: direction normalised in float32, end = origin + direction * (float) maxrange.
+    length = np.float32(norm)
+    fr = np.float32(maxrange)
+    ex = np.float32(ox + np.float32(np.float32(dx / length) * fr))
+    ey = np.float32(oy + np.float32(np.float32(dy / length) * fr))
+    ez = np.float32(oz + np.float32(np.float32(dz / length) * fr))
+    return ex, ey, ez, False
+
+
+COUNT, BUFFER, GRID = 0, 1, 2
+
+
+@njit(cache=True, inline="always")
+def _emit(mode, out, out_index, grid, lo, dims, kx, ky, kz):  # type: ignore[no-untyped-def]
+    if mode == BUFFER:
+        out[out_index] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+    elif mode == GRID:
+        x, y, z = kx - lo[0], ky - lo[1], kz - lo[2]
+        if 0 <= x < dims[0] and 0 <= y < dims[1] and 0 <= z < dims[2]:
+            grid[(x * dims[1] + y) * dims[2] + z] = 1
+
+
+@njit(cache=True, inline="always")
+def _axis_init(direction, key, origin, resolution):  # type: ignore[no-untyped-def]
+    """Step, tMax and tDelta of one axis, as computeRayKeys' initialisation phase."""
+    if direction > 0.0:
+        step = 1
+    elif direction < 0.0:
+        step = -1
+    else:
+        return 0, DBL_MAX, DBL_MAX
+    border = (np.float64(key - TREE_MAX_VAL) + 0.5) * resolution
+    border += np.float64(np.float32(step * resolution * 0.5))
+    return step, (border - np.float64(origin)) / np.float64(direction), resolution / abs(np.float64(direction))
+
+
+@njit(cache=True)
+def _trace(ox, oy, oz, ex, ey, ez, resolution, factor, mode, out, out_start, grid, lo, dims):  # type: ignore[no-untyped-def]
+    """computeRayKeys: counts the ray's keys, writes them packed into out[out_start:] or marks them in the grid."""
+    kx = _coord_to_key(np.float64(ox), factor)
+    ky = _coord_to_key(np.float64(oy), factor)
+    kz = _coord_to_key(np.float64(oz), factor)
+    end_x = _coord_to_key(np.float64(ex), factor)
+    end_y = _coord_to_key(np.float64(ey), factor)
+    end_z = _coord_to_key(np.float64(ez), factor)
+    if kx < 0 or ky < 0 or kz < 0 or end_x < 0 or end_y < 0 or end_z < 0:
+        return 0
+    if kx == end_x and ky == end_y and kz == end_z:
+        return 0
+    _emit(mode, out, out_start, grid, lo, dims, kx, ky, kz)
+    n = 1
+    dx = np.float32(ex - ox)
+    dy = np.float32(ey - oy)
+    dz = np.float32(ez - oz)
+    norm_sq = np.float32(np.float32(np.float32(dx * dx) + np.float32(dy * dy)) + np.float32(dz * dz))
+    length = np.float32(math.sqrt(np.float64(norm_sq)))
+    sx, tmx, tdx = _axis_init(np.float32(dx / length), kx, ox, resolution)
+    sy, tmy, tdy = _axis_init(np.float32(dy / length), ky, oy, resolution)
+    sz, tmz, tdz = _axis_init(np.float32(dz / length), kz, oz, resolution)
+    length64 = np.float64(length)
+    while True:
+        if tmx < tmy:
+            if tmx < tmz:
+                kx += sx
+                tmx += tdx
+            else:
+                kz += sz
+                tmz += tdz
+        elif tmy < tmz:
+            ky += sy
+            tmy += tdy
+        else:
+            kz += sz
+            tmz += tdz
+        if kx == end_x and ky == end_y and kz == end_z:
+            break
+        if min(min(tmx, tmy), tmz) > length64:
+            break
+        _emit(mode, out, out_start + n, grid, lo, dims, kx, ky, kz)
+        n += 1
+    return n
+
+
+@njit(cache=True, parallel=True)
+def ray_key_counts(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
+    """Number of free keys of every ray (first pass, to size the buffer)."""
+    factor = 1.0 / resolution
+    counts = np.zeros(points.shape[0], dtype=np.int64)
+    dummy = np.zeros(1, dtype=np.uint64)
+    no_grid = np.zeros(1, dtype=np.uint8)
+    zeros = np.zeros(3, dtype=np.int64)
+    for i in prange(points.shape[0]):
+        ex, ey, ez, _ = _ray_end(points, origin, maxrange, i)
+        counts[i] = _trace(
+            origin[0], origin[1], origin[2], ex, ey, ez, resolution, factor, COUNT, dummy, 0, no_grid, zeros, zeros
+        )
+    return counts
+
+
+@njit(cache=True, parallel=True)
+def ray_keys(points, origin, resolution, maxrange, offsets, total):  # type: ignore[no-untyped-def]
+    """Free keys of all rays, packed, concatenated (second pass), and each point's occupied key or EMPTY."""
+    factor = 1.0 / resolution
+    out = np.empty(total, dtype=np.uint64)
+    occupied = np.full(points.shape[0], EMPTY, dtype=np.uint64)
+    no_grid = np.zeros(1, dtype=np.uint8)
+    zeros = np.zeros(3, dtype=np.int64)
+    for i in prange(points.shape[0]):
+        ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
+        _trace(
+            origin[0],
+            origin[1],
+            origin[2],
+            ex,
+            ey,
+            ez,
+            resolution,
+            factor,
+            BUFFER,
+            out,
+            offsets[i],
+            no_grid,
+            zeros,
+            zeros,
+        )
+        if is_hit:
+            kx = _coord_to_key(np.float64(points[i, 0]), factor)
+            ky = _coord_to_key(np.float64(points[i, 1]), factor)
+            kz = _coord_to_key(np.float64(points[i, 2]), factor)
+            if kx >= 0 and ky >= 0 and kz >= 0:
+                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+    return out, occupied
+
+
+@njit(cache=True, parallel=True)
+def ray_ends(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
+    """End point of every ray (cut at maxrange), and each point's occupied key (packed) or EMPTY."""
+    factor = 1.0 / resolution
+    ends = np.empty((points.shape[0], 3), dtype=np.float32)
+    occupied = np.full(points.shape[0], EMPTY, dtype=np.uint64)
+    for i in prange(points.shape[0]):
+        ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
+        ends[i, 0], ends[i, 1], ends[i, 2] = ex, ey, ez
+        if is_hit:
+            kx = _coord_to_key(np.float64(points[i, 0]), factor)
+            ky = _coord_to_key(np.float64(points[i, 1]), factor)
+            kz = _coord_to_key(np.float64(points[i, 2]), factor)
+            if kx >= 0 and ky >= 0 and kz >= 0:
+                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+    return ends, occupied
+
+
+@njit(cache=True)
+def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
+    """One pass over a scan: status per point (0 used, 1 non-finite, 2 outside the key range), ray ends (cut at
+    maxrange), occupied keys (packed or EMPTY) and the key bounding box of origin and ends."""
+    factor = 1.0 / resolution
+    n = points.shape[0]
+    status = np.zeros(n, dtype=np.uint8)
+    ends = np.empty((n, 3), dtype=np.float32)
+    occupied = np.full(n, EMPTY, dtype=np.uint64)
+    chunks = 64
+    mins = np.full((chunks, 3), 1 << 20, dtype=np.int64)
+    maxs = np.full((chunks, 3), -1, dtype=np.int64)
+    size = (n + chunks - 1) // chunks
+    for c in prange(chunks):
+        for i in range(c * size, min(n, (c + 1) * size)):
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+                status[i] = 1
+                continue
+            kx = _coord_to_key(np.float64(px), factor)
+            ky = _coord_to_key(np.float64(py), factor)
+            kz = _coord_to_key(np.float64(pz), factor)
+            if kx < 0 or ky < 0 or kz < 0:
+                status[i] = 2
+                continue
+            ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
+            ends[i, 0], ends[i, 1], ends[i, 2] = ex, ey, ez
+            if is_hit:
+                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+            else:
+                kx = _coord_to_key(np.float64(ex), factor)
+                ky = _coord_to_key(np.float64(ey), factor)
+                kz = _coord_to_key(np.float64(ez), factor)
+                if kx < 0 or ky < 0 or kz < 0:
+                    continue
+            mins[c, 0] = min(mins[c, 0], kx)
+            mins[c, 1] = min(mins[c, 1], ky)
+            mins[c, 2] = min(mins[c, 2], kz)
+            maxs[c, 0] = max(maxs[c, 0], kx)
+            maxs[c, 1] = max(maxs[c, 1], ky)
+            maxs[c, 2] = max(maxs[c, 2], kz)
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    for a in range(3):
+        lo[a] = mins[:, a].min()
+        hi[a] = maxs[:, a].max()
+    return status, ends, occupied, lo, hi
+
+
+@njit(cache=True, parallel=True)
+def trace_into_grid(ends, status, origin, resolution, lo, dims):  # type: ignore[no-untyped-def]
+    """Mark every free key of every used ray in a dense grid over [lo, lo + dims) (1 = free).
+
+    computeRayKeys specialised for the grid: the key walks as a linear grid index (so "reached the end key" is
+    one comparison), and a cell is written only on its first visit, so the threads do not fight over the cache
+    lines near the sensor that every ray crosses. The caller's box has a margin of 2 keys around the origin and
+    all ends, more than DDA round-off can overshoot.
+    """
+    factor = 1.0 / resolution
+    size = dims[0] * dims[1] * dims[2]
+    grid = np.zeros(size, dtype=np.uint8)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    kx0 = _coord_to_key(np.float64(ox), factor)
+    ky0 = _coord_to_key(np.float64(oy), factor)
+    kz0 = _coord_to_key(np.float64(oz), factor)
+    stride_x = dims[1] * dims[2]
+    stride_y = dims[2]
+    start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
+    for i in prange(ends.shape[0]):
+        if status[i] != 0:
+            continue
+        ex, ey, ez = ends[i, 0], ends[i, 1], ends[i, 2]
+        end_x = _coord_to_key(np.float64(ex), factor)
+        end_y = _coord_to_key(np.float64(ey), factor)
+        end_z = _coord_to_key(np.float64(ez), factor)
+        if end_x < 0 or end_y < 0 or end_z < 0:
+            continue
+        if kx0 == end_x and ky0 == end_y and kz0 == end_z:
+            continue
+        end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
+        if grid[start] == 0:
+            grid[start] = 1
+        dx = np.float32(ex - ox)
+        dy = np.float32(ey - oy)
+        dz = np.float32(ez - oz)
+        norm_sq = np.float32(np.float32(np.float32(dx * dx) + np.float32(dy * dy)) + np.float32(dz * dz))
+        length = np.float32(math.sqrt(np.float64(norm_sq)))
+        sx, tmx, tdx = _axis_init(np.float32(dx / length), kx0, ox, resolution)
+        sy, tmy, tdy = _axis_init(np.float32(dy / length), ky0, oy, resolution)
+        sz, tmz, tdz = _axis_init(np.float32(dz / length), kz0, oz, resolution)
+        ix = sx * stride_x
+        iy = sy * stride_y
+        iz = sz
+        length64 = np.float64(length)
+        index = start
+        while True:
+            if tmx < tmy:
+                if tmx < tmz:
+                    index += ix
+                    tmx += tdx
+                else:
+                    index += iz
+                    tmz += tdz
+            elif tmy < tmz:
+                index += iy
+                tmy += tdy
+            else:
+                index += iz
+                tmz += tdz
+            if index == end_index:
+                break
+            if min(min(tmx, tmy), tmz) > length64:
+                break
+            if index < 0 or index >= size:
+                break  # memory guard only; the margin makes it unreachable
+            if grid[index] == 0:
+                grid[index] = 1
+    return grid
+
+
+@njit(cache=True)
+def mark_occupied(grid, occupied, lo, dims):  # type: ignore[no-untyped-def]
+    mask = np.uint64(0xFFFF)
+    for i in range(occupied.shape[0]):
+        k = occupied[i]
+        if k == EMPTY:
+            continue
+        x = np.int64((k >> np.uint64(32)) & mask) - lo[0]
+        y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
+        z = np.int64(k & mask) - lo[2]
+        grid[(x * dims[1] + y) * dims[2] + z] = 2
+
+
+@njit(cache=True, parallel=True)
+def packed_bbox(free, occupied):  # type: ignore[no-untyped-def]
+    """Per-axis min and max key over packed keys (EMPTY entries ignored)."""
+    chunks = 64
+    mins = np.full((chunks, 3), 1 << 20, dtype=np.int64)
+    maxs = np.full((chunks, 3), -1, dtype=np.int64)
+    mask = np.uint64(0xFFFF)
+    total = free.shape[0] + occupied.shape[0]
+    size = (total + chunks - 1) // chunks
+    for c in prange(chunks):
+        for j in range(c * size, min(total, (c + 1) * size)):
+            k = free[j] if j < free.shape[0] else occupied[j - free.shape[0]]
+            if k == EMPTY:
+                continue
+            x = np.int64((k >> np.uint64(32)) & mask)
+            y = np.int64((k >> np.uint64(16)) & mask)
+            z = np.int64(k & mask)
+            if x < mins[c, 0]:
+                mins[c, 0] = x
+            if x > maxs[c, 0]:
+                maxs[c, 0] = x
+            if y < mins[c, 1]:
+                mins[c, 1] = y
+            if y > maxs[c, 1]:
+                maxs[c, 1] = y
+            if z < mins[c, 2]:
+                mins[c, 2] = z
+            if z > maxs[c, 2]:
+                maxs[c, 2] = z
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    for a in range(3):
+        lo[a] = mins[:, a].min()
+        hi[a] = maxs[:, a].max()
+    return lo, hi
+
+
+@njit(cache=True, parallel=True)
+def mark_grid(free, occupied, lo, dims):  # type: ignore[no-untyped-def]
+    """Dense scan-local grid over the keys' bounding box: 1 free, 2 occupied (occupied wins)."""
+    grid = np.zeros(dims[0] * dims[1] * dims[2], dtype=np.uint8)
+    mask = np.uint64(0xFFFF)
+    for i in prange(free.shape[0]):
+        k = free[i]
+        x = np.int64((k >> np.uint64(32)) & mask) - lo[0]
+        y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
+        z = np.int64(k & mask) - lo[2]
+        grid[(x * dims[1] + y) * dims[2] + z] = 1
+    for i in range(occupied.shape[0]):
+        k = occupied[i]
+        if k == EMPTY:
+            continue
+        x = np.int64((k >> np.uint64(32)) & mask) - lo[0]
+        y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
+        z = np.int64(k & mask) - lo[2]
+        grid[(x * dims[1] + y) * dims[2] + z] = 2
+    return grid
+
+
+@njit(cache=True)
+def collect_grid(grid, lo, dims):  # type: ignore[no-untyped-def]
+    """Packed keys of the grid's free and occupied cells."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    slab = ny * nz
+    free_counts = np.zeros(nx, dtype=np.int64)
+    occ_counts = np.zeros(nx, dtype=np.int64)
+    for x in prange(nx):
+        f = 0
+        o = 0
+        base = x * slab
+        for j in range(slab):
+            v = grid[base + j]
+            if v == 1:
+                f += 1
+            elif v == 2:
+                o += 1
+        free_counts[x] = f
+        occ_counts[x] = o
+    free_offsets = np.zeros(nx + 1, dtype=np.int64)
+    occ_offsets = np.zeros(nx + 1, dtype=np.int64)
+    for x in range(nx):
+        free_offsets[x + 1] = free_offsets[x] + free_counts[x]
+        occ_offsets[x + 1] = occ_offsets[x] + occ_counts[x]
+    free = np.empty(free_offsets[nx], dtype=np.uint64)
+    occ = np.empty(occ_offsets[nx], dtype=np.uint64)
+    for x in prange(nx):
+        f = free_offsets[x]
+        o = occ_offsets[x]
+        base = x * slab
+        kx = np.uint64(x + lo[0]) << np.uint64(32)
+        for j in range(slab):
+            v = grid[base + j]
+            if v == 0:
+                continue
+            y = j // nz
+            z = j - y * nz
+            packed = kx | (np.uint64(y + lo[1]) << np.uint64(16)) | np.uint64(z + lo[2])
+            if v == 1:
+                free[f] = packed
+                f += 1
+            else:
+                occ[o] = packed
+                o += 1
+    return free, occ
+
+
+# -- open-addressing table of finest voxels ----------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _slot(key, mask):  # type: ignore[no-untyped-def]
+    # splitmix64 finaliser: spreads the packed key bits over the table.
+    h = key
+    h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    h = h ^ (h >> np.uint64(31))
+    return np.int64(h & mask)
+
+
+@njit(cache=True)
+def table_find(keys, key):  # type: ignore[no-untyped-def]
+    mask = np.uint64(keys.shape[0] - 1)
+    i = _slot(key, mask)
+    while True:
+        k = keys[i]
+        if k == key:
+            return i
+        if k == EMPTY:
+            return -1
+        i = (i + 1) & np.int64(mask)
+
+
+@njit(cache=True)
+def table_find_many(keys, queries):  # type: ignore[no-untyped-def]
+    out = np.empty(queries.shape[0], dtype=np.int64)
+    for j in range(queries.shape[0]):
+        out[j] = table_find(keys, queries[j])
+    return out
+
+
+@njit(cache=True)
+def table_update(keys, values, updates, deltas, base_values, has_base, clamp_min, clamp_max, touched, room):  # type: ignore[no-untyped-def]
+    """Apply one log-odds update per key (OctoMap's updateNode at the finest level).
+
+    A missing key starts from ``base_values[j]`` when ``has_base[j]`` (the value of the pruned leaf it was
+    expanded from), else from 0. ``touched[j]`` tells whether key j changed. Stops before adding key number
+    ``room + 1`` (the caller grows the table and goes on). Returns (new keys, updates processed).
+    """
+    mask = np.uint64(keys.shape[0] - 1)
+    added = 0
+    for j in range(updates.shape[0]):
+        key = updates[j]
+        delta = deltas[j]
+        i = _slot(key, mask)
+        while True:
+            k = keys[i]
+            if k == key or k == EMPTY:  # noqa: SIM109 - plain comparisons compile to two integer compares
+                break
+            i = (i + 1) & np.int64(mask)
+        if keys[i] == key:
+            value = values[i]
+            # OctoMap's early abort: already clamped in the update's direction.
+            if (delta >= 0 and value >= clamp_max) or (delta <= 0 and value <= clamp_min):
+                touched[j] = False
+                continue
+        else:
+            if added == room:
+                return added, j
+            keys[i] = key
+            added += 1
+            value = base_values[j] if has_base[j] else np.float32(0.0)
+        value = np.float32(value + delta)
+        if value < clamp_min:
+            value = clamp_min
+        elif value > clamp_max:
+            value = clamp_max
+        values[i] = value
+        touched[j] = True
+    return added, updates.shape[0]
+
+
+@njit(cache=True)
+def table_set(keys, values, updates, new_values):  # type: ignore[no-untyped-def]
+    """Set values (inserting missing keys); returns the number of new keys."""
+    mask = np.uint64(keys.shape[0] - 1)
+    added = 0
+    for j in range(updates.shape[0]):
+        key = updates[j]
+        i = _slot(key, mask)
+        while keys[i] != key and keys[i] != EMPTY:
+            i = (i + 1) & np.int64(mask)
+        if keys[i] == EMPTY:
+            keys[i] = key
+            added += 1
+        values[i] = new_values[j]
+    return added

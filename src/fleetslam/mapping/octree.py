@@ -1,0 +1,599 @@
+"""A probabilistic occupancy octree with OctoMap 1.10's semantics, built for speed.
+
+Semantics (see ``shared/specs/octomap_format.md``): each scan's free keys (3D DDA from the sensor origin to each
+endpoint, origin voxel in, end voxel out) and occupied keys (endpoints) are collected as sets, occupied wins,
+and every voxel is updated once per scan with the miss or hit log-odds, clamped. OctoMap prunes along every
+updated path, so its node structure is the canonical maximal pruning of the leaf values; this engine stores the
+finest voxels in a hash table (plus coarse leaves read from files or left by :meth:`prune`) and derives that
+canonical structure when asked (node counts, leaves, files) — the same nodes, the same bytes.
+
+Speed: rays are traced in parallel (numba, both cores) into a dense scan-local grid, so deduplication costs one
+byte write per traversed voxel; only the distinct voxels touch the table.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fleetslam.errors import MapFileError
+from fleetslam.mapping import _kernels as K
+from fleetslam.mapping.keys import TREE_DEPTH, TREE_MAX_VAL, coords_to_keys, node_centers, pack, unpack
+from fleetslam.mapping.leaves import LeafArrays
+from fleetslam.mapping.raycast import cast_ray, scan_keys
+
+log = logging.getLogger(__name__)
+
+
+def logodds(probability: float) -> np.float32:
+    """OctoMap's logodds(): float(log(p / (1 - p)))."""
+    return np.float32(math.log(probability / (1.0 - probability)))
+
+
+def probability(log_odds: ArrayLike) -> NDArray[np.float64]:
+    return 1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))
+
+
+@dataclass(frozen=True)
+class InsertSummary:
+    """What one scan did."""
+
+    points: int
+    used: int
+    skipped_nonfinite: int
+    skipped_out_of_range: int
+    free_voxels: int
+    occupied_voxels: int
+
+
+@dataclass(frozen=True)
+class _Structure:
+    """Canonical pruned tree: leaves (pre-order) and the inner nodes."""
+
+    leaves: LeafArrays
+    inner_count: int
+
+
+class OccupancyOctree:
+    """Occupancy octree (OctoMap OcTree semantics and files).
+
+    Args:
+        resolution: edge of the finest voxels (m).
+        prob_hit, prob_miss: sensor model.
+        clamp_min, clamp_max: probability clamping thresholds.
+        occupancy_threshold: probability from which a voxel is occupied.
+    """
+
+    def __init__(
+        self,
+        resolution: float,
+        *,
+        prob_hit: float = 0.7,
+        prob_miss: float = 0.4,
+        clamp_min: float = 0.1192,
+        clamp_max: float = 0.971,
+        occupancy_threshold: float = 0.5,
+    ) -> None:
+        if not resolution > 0 or not math.isfinite(resolution):
+            raise ValueError(f"resolution must be a positive number, got {resolution}")
+        for name, p in (("prob_hit", prob_hit), ("prob_miss", prob_miss), ("clamp_min", clamp_min),
+                        ("clamp_max", clamp_max), ("occupancy_threshold", occupancy_threshold)):  # fmt: skip
+            if not 0.0 < p < 1.0:
+                raise ValueError(f"{name} must be a probability in (0, 1), got {p}")
+        self.resolution = float(resolution)
+        self.prob_hit, self.prob_miss = prob_hit, prob_miss
+        self.clamp_min, self.clamp_max = clamp_min, clamp_max
+        self.occupancy_threshold = occupancy_threshold
+        self.hit_log = logodds(prob_hit)
+        self.miss_log = logodds(prob_miss)
+        self.clamp_min_log = logodds(clamp_min)
+        self.clamp_max_log = logodds(clamp_max)
+        self.threshold_log = logodds(occupancy_threshold)
+        self._keys = np.full(1024, K.EMPTY, dtype=np.uint64)
+        self._values = np.zeros(1024, dtype=np.float32)
+        self._count = 0
+        self._coarse: dict[tuple[int, int], np.float32] = {}
+        self._changes: list[NDArray[np.uint64]] = []
+        self._structure: _Structure | None = None
+
+    # -- storage ---------------------------------------------------------------------------------------------
+    def _reserve(self, extra: int) -> None:
+        needed = self._count + extra
+        if needed * 2 <= self._keys.shape[0]:
+            return
+        capacity = self._keys.shape[0]
+        while needed * 2 > capacity:
+            capacity *= 2
+        occupied = self._keys != K.EMPTY
+        keys, values = self._keys[occupied], self._values[occupied]
+        self._keys = np.full(capacity, K.EMPTY, dtype=np.uint64)
+        self._values = np.zeros(capacity, dtype=np.float32)
+        K.table_set(self._keys, self._values, keys, values)
+
+    def _update_table(
+        self, updates: NDArray[np.uint64], deltas: NDArray[np.float32], base: NDArray[np.float32],
+        has_base: NDArray[np.bool_],
+    ) -> NDArray[np.bool_]:  # fmt: skip
+        """One clamped log-odds update per key; grows the table (load ≤ 1/2) only when new keys need it."""
+        touched = np.zeros(len(updates), np.bool_)
+        start = 0
+        while True:
+            room = self._keys.shape[0] // 2 - self._count
+            added, done = K.table_update(
+                self._keys, self._values, updates[start:], deltas[start:], base[start:], has_base[start:],
+                self.clamp_min_log, self.clamp_max_log, touched[start:], room,
+            )  # fmt: skip
+            self._count += int(added)
+            start += int(done)
+            if start >= len(updates):
+                return touched
+            self._reserve(len(updates) - start)
+
+    def _fine_items(self) -> tuple[NDArray[np.uint64], NDArray[np.float32]]:
+        occupied = self._keys != K.EMPTY
+        return self._keys[occupied], self._values[occupied]
+
+    # -- insertion -------------------------------------------------------------------------------------------
+    def insert_point_cloud(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float = -1.0, discretize: bool = False
+    ) -> InsertSummary:
+        """Integrate one scan (world frame, float32 like OctoMap's point3d), from the sensor at ``origin``.
+
+        Non-finite points and points outside the key range are skipped and counted (one log line per scan).
+        """
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float32).reshape(-1, 3))
+        origin32 = np.ascontiguousarray(np.asarray(origin, dtype=np.float32).reshape(3))
+        if not np.isfinite(origin32).all() or not coords_to_keys(origin32, self.resolution)[1][0]:
+            raise ValueError(f"sensor origin {origin32.tolist()} is outside the map's key range")
+        if discretize and len(pts):
+            keys, valid = coords_to_keys(pts, self.resolution)
+            _, first = np.unique(pack(keys[valid]), return_index=True)
+            centres = (keys[valid][np.sort(first)] - TREE_MAX_VAL + 0.5) * self.resolution
+            invalid = pts[~valid]
+            pts = np.ascontiguousarray(np.vstack([centres.astype(np.float32), invalid]))
+        free, occ, status = scan_keys(pts, origin32, self.resolution, float(max_range))
+        n_nonfinite = int(np.count_nonzero(status == 1))
+        n_out = int(np.count_nonzero(status == 2))
+        if n_nonfinite or n_out:
+            log.info("scan: skipped %d non-finite and %d out-of-range points of %d", n_nonfinite, n_out, len(pts))
+        self._apply(free, occ)
+        used = len(pts) - n_nonfinite - n_out
+        return InsertSummary(len(pts), used, n_nonfinite, n_out, len(free), len(occ))
+
+    def _apply(self, free: NDArray[np.uint64], occupied: NDArray[np.uint64]) -> None:
+        updates = np.concatenate([free, occupied])
+        if len(updates) == 0:
+            return
+        deltas = np.concatenate(
+            [np.full(len(free), self.miss_log, np.float32), np.full(len(occupied), self.hit_log, np.float32)]
+        )
+        base = np.zeros(len(updates), np.float32)
+        has_base = np.zeros(len(updates), np.bool_)
+        if self._coarse:
+            keep = self._expand_coarse(updates, deltas, base, has_base)
+            updates, deltas, base, has_base = updates[keep], deltas[keep], base[keep], has_base[keep]
+        touched = self._update_table(updates, deltas, base, has_base)
+        self._changes.append(updates[touched])
+        self._structure = None
+
+    def _coarse_containing(self, packed: int) -> tuple[int, int] | None:
+        x, y, z = (packed >> 32) & 0xFFFF, (packed >> 16) & 0xFFFF, packed & 0xFFFF
+        for depth in range(TREE_DEPTH - 1, -1, -1):
+            shift = TREE_DEPTH - depth
+            code = ((x >> shift) << 32) | ((y >> shift) << 16) | (z >> shift)
+            if (depth, code) in self._coarse:
+                return depth, code
+        return None
+
+    def _expand_coarse(
+        self, updates: NDArray[np.uint64], deltas: NDArray[np.float32], base: NDArray[np.float32],
+        has_base: NDArray[np.bool_],
+    ) -> NDArray[np.bool_]:  # fmt: skip
+        """Updates inside pruned leaves: early abort when clamped, else expand the leaf along the key's path."""
+        keep = np.ones(len(updates), np.bool_)
+        fine_known = K.table_find_many(self._keys, updates) >= 0
+        for j in np.flatnonzero(~fine_known):
+            packed = int(updates[j])
+            found = self._coarse_containing(packed)
+            if found is None:
+                continue
+            value = self._coarse[found]
+            delta = deltas[j]
+            if (delta >= 0 and value >= self.clamp_max_log) or (delta <= 0 and value <= self.clamp_min_log):
+                keep[j] = False
+                continue
+            self._split(found, packed, value)
+            base[j], has_base[j] = value, True
+        return keep
+
+    def _split(self, leaf: tuple[int, int], packed: int, value: np.float32) -> None:
+        """OctoMap's expandNode along the path to ``packed``: 7 siblings per level keep the leaf's value."""
+        depth, _ = leaf
+        del self._coarse[leaf]
+        x, y, z = (packed >> 32) & 0xFFFF, (packed >> 16) & 0xFFFF, packed & 0xFFFF
+        siblings_fine: list[int] = []
+        for level in range(depth + 1, TREE_DEPTH + 1):
+            shift = TREE_DEPTH - level
+            px, py, pz = (x >> shift) & ~1, (y >> shift) & ~1, (z >> shift) & ~1
+            on_path = ((x >> shift) & 1, (y >> shift) & 1, (z >> shift) & 1)
+            for child in range(8):
+                bits = (child & 1, (child >> 1) & 1, (child >> 2) & 1)
+                if bits == on_path:
+                    continue
+                code = ((px | bits[0]) << 32) | ((py | bits[1]) << 16) | (pz | bits[2])
+                if level == TREE_DEPTH:
+                    siblings_fine.append(code)
+                else:
+                    self._coarse[(level, code)] = value
+        if siblings_fine:
+            self._reserve(len(siblings_fine))
+            sib = np.array(siblings_fine, dtype=np.uint64)
+            self._count += K.table_set(self._keys, self._values, sib, np.full(len(sib), value, np.float32))
+
+    # -- canonical structure ------------------------------------------------------------------------------------
+    def _canonical(self) -> _Structure:
+        if self._structure is None:
+            fine_keys, fine_values = self._fine_items()
+            items = list(self._coarse.items())
+            self._structure = canonical_structure(
+                fine_keys,
+                fine_values,
+                np.array([d for (d, _), _ in items], np.int64),
+                np.array([c for (_, c), _ in items], np.uint64),
+                np.array([v for _, v in items], np.float32),
+            )
+        return self._structure
+
+    def leaves(self) -> LeafArrays:
+        """Leaves of the canonical (pruned) tree, in pre-order."""
+        return self._canonical().leaves
+
+    def num_nodes(self) -> int:
+        """Number of nodes (inner and leaves), as OctoMap's size()."""
+        s = self._canonical()
+        return s.inner_count + len(s.leaves)
+
+    def num_leaf_nodes(self) -> int:
+        return len(self._canonical().leaves)
+
+    def memory_bytes(self) -> int:
+        """Bytes held by the voxel store (table arrays and pruned leaves)."""
+        return int(self._keys.nbytes + self._values.nbytes + 64 * len(self._coarse))
+
+    def prune(self) -> None:
+        """Store the canonical pruned tree (frees memory; later updates expand pruned leaves as OctoMap does)."""
+        leaves = self.leaves()
+        self._load_leaves(leaves)
+
+    def _load_leaves(self, leaves: LeafArrays) -> None:
+        fine = leaves.depths == TREE_DEPTH
+        keys = pack(leaves.keys[fine])
+        self._count = 0
+        self._keys = np.full(1024, K.EMPTY, dtype=np.uint64)
+        self._values = np.zeros(1024, dtype=np.float32)
+        self._reserve(len(keys))
+        self._count = K.table_set(self._keys, self._values, keys, leaves.log_odds[fine])
+        self._coarse = {}
+        coarse_idx = np.flatnonzero(~fine)
+        for i in coarse_idx:
+            depth = int(leaves.depths[i])
+            shift = TREE_DEPTH - depth
+            kx, ky, kz = (int(v) >> shift for v in leaves.keys[i])
+            self._coarse[(depth, (kx << 32) | (ky << 16) | kz)] = np.float32(leaves.log_odds[i])
+        self._structure = None
+
+    @classmethod
+    def from_leaves(cls, resolution: float, leaves: LeafArrays, **sensor_model: Any) -> OccupancyOctree:
+        tree = cls(resolution, **sensor_model)
+        tree._load_leaves(leaves)
+        return tree
+
+    def copy(self) -> OccupancyOctree:
+        other = OccupancyOctree(
+            self.resolution, prob_hit=self.prob_hit, prob_miss=self.prob_miss, clamp_min=self.clamp_min,
+            clamp_max=self.clamp_max, occupancy_threshold=self.occupancy_threshold,
+        )  # fmt: skip
+        other._keys, other._values, other._count = self._keys.copy(), self._values.copy(), self._count
+        other._coarse = dict(self._coarse)
+        return other
+
+    # -- queries -----------------------------------------------------------------------------------------------
+    def _values_at(self, packed: NDArray[np.uint64]) -> NDArray[np.float64]:
+        """Log-odds of the leaves holding packed finest keys (NaN = unknown)."""
+        idx = K.table_find_many(self._keys, packed)
+        values = np.where(idx >= 0, self._values[np.maximum(idx, 0)], np.nan).astype(np.float64)
+        if self._coarse:
+            for j in np.flatnonzero(idx < 0):
+                found = self._coarse_containing(int(packed[j]))
+                if found is not None:
+                    values[j] = float(self._coarse[found])
+        return values
+
+    def log_odds(self, xyz: ArrayLike) -> float | NDArray[np.float64] | None:
+        """Log-odds at points: a float (None if unknown) for one point ``(3,)``, an array (NaN = unknown) for
+        ``(N, 3)``."""
+        pts = np.asarray(xyz, dtype=np.float64)
+        single = pts.ndim == 1
+        keys, valid = coords_to_keys(pts.reshape(-1, 3), self.resolution)
+        out = np.full(len(keys), np.nan)
+        out[valid] = self._values_at(pack(keys[valid]))
+        if single:
+            return None if np.isnan(out[0]) else float(out[0])
+        return out
+
+    def is_occupied(self, xyz: ArrayLike) -> bool | NDArray[np.bool_]:
+        """Occupied (log-odds ≥ threshold); unknown counts as not occupied."""
+        values = self.log_odds(np.asarray(xyz, dtype=np.float64).reshape(-1, 3))
+        assert isinstance(values, np.ndarray)
+        occupied = np.nan_to_num(values, nan=-np.inf) >= self.threshold_log
+        return bool(occupied[0]) if np.asarray(xyz).ndim == 1 else occupied
+
+    def _centers(self, occupied: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        leaves = self.leaves()
+        mask = (leaves.log_odds >= self.threshold_log) == occupied
+        centres = node_centers(leaves.keys[mask], leaves.depths[mask], self.resolution)
+        sizes = self.resolution * np.power(2.0, TREE_DEPTH - leaves.depths[mask].astype(np.float64))
+        return centres, sizes
+
+    def occupied_centers(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Centres and edge lengths of occupied leaves."""
+        return self._centers(True)
+
+    def free_centers(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Centres and edge lengths of free leaves."""
+        return self._centers(False)
+
+    def metric_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Min and max corner of all known space."""
+        leaves = self.leaves()
+        if len(leaves) == 0:
+            return np.zeros(3), np.zeros(3)
+        size = np.power(2.0, TREE_DEPTH - leaves.depths.astype(np.float64))[:, None]
+        lo = (leaves.keys.astype(np.float64) - TREE_MAX_VAL) * self.resolution
+        return lo.min(axis=0), (lo + size * self.resolution).max(axis=0)
+
+    def metric_min(self) -> NDArray[np.float64]:
+        """Min corner of all known space (OctoMap's getMetricMin; zeros for an empty tree)."""
+        return self.metric_bounds()[0]
+
+    def metric_max(self) -> NDArray[np.float64]:
+        """Max corner of all known space (OctoMap's getMetricMax; zeros for an empty tree)."""
+        return self.metric_bounds()[1]
+
+    def pop_changed_keys(self) -> NDArray[np.uint16]:
+        """Finest keys ``(K, 3)`` of the voxels whose value changed since the last pop (for incremental viewers)."""
+        if not self._changes:
+            return np.zeros((0, 3), np.uint16)
+        changed = np.unique(np.concatenate(self._changes))
+        self._changes = []
+        return unpack(changed)
+
+    def pop_changes(self) -> NDArray[np.float64]:
+        """Centres ``(K, 3)`` of the finest voxels whose value changed since the last pop."""
+        return (self.pop_changed_keys().astype(np.float64) - TREE_MAX_VAL + 0.5) * self.resolution
+
+    # -- editing -------------------------------------------------------------------------------------------------
+    def clear_bbox(self, bbox_min: ArrayLike, bbox_max: ArrayLike) -> int:
+        """Set every known leaf inside the box to clamp_min (octomap_server's clear_bbx); returns how many."""
+        lo = np.asarray(bbox_min, dtype=np.float64)
+        hi = np.asarray(bbox_max, dtype=np.float64)
+        leaves = self.leaves()
+        centres = node_centers(leaves.keys, leaves.depths, self.resolution)
+        inside = ((centres >= lo) & (centres <= hi)).all(axis=1)
+        if not inside.any():
+            return 0
+        values = leaves.log_odds.copy()
+        values[inside] = self.clamp_min_log
+        self._load_leaves(LeafArrays(leaves.keys, leaves.depths, values))
+        fine = inside & (leaves.depths == TREE_DEPTH)
+        self._changes.append(pack(leaves.keys[fine]))
+        return int(inside.sum())
+
+    def merge(self, other: OccupancyOctree, transform: ArrayLike | None = None) -> None:
+        """Add another tree's finest-level evidence (log-odds added, clamped), moved by a 4×4 ``transform``.
+
+        Pruned leaves of ``other`` are expanded to their finest voxels first; the same resolution is required.
+        """
+        if abs(other.resolution - self.resolution) > 1e-12:
+            raise ValueError(f"cannot merge a {other.resolution} m tree into a {self.resolution} m tree")
+        leaves = other.leaves()
+        keys, values = _expand_to_finest(leaves)
+        centres = (keys.astype(np.float64) - TREE_MAX_VAL + 0.5) * self.resolution
+        if transform is not None:
+            t = np.asarray(transform, dtype=np.float64)
+            centres = centres @ t[:3, :3].T + t[:3, 3]
+        new_keys, valid = coords_to_keys(centres.astype(np.float32), self.resolution)
+        packed = pack(new_keys[valid])
+        values = values[valid]
+        # Several source voxels can land in one target voxel after rotation: keep the strongest evidence.
+        order = np.argsort(-np.abs(values), kind="stable")
+        packed, first = np.unique(packed[order], return_index=True)
+        deltas = values[order][first].astype(np.float32)
+        base = np.zeros(len(packed), np.float32)
+        has_base = np.zeros(len(packed), np.bool_)
+        if self._coarse:
+            keep = self._expand_coarse(packed, deltas, base, has_base)
+            packed, deltas, base, has_base = packed[keep], deltas[keep], base[keep], has_base[keep]
+        touched = self._update_table(packed, deltas, base, has_base)
+        self._changes.append(packed[touched])
+        self._structure = None
+
+    def to_max_likelihood(self, in_place: bool = False) -> OccupancyOctree:
+        """Leaves set to clamp_max if occupied else clamp_min (OctoMap's toMaxLikelihood), then pruned.
+
+        Works on a copy, which is returned, unless ``in_place`` (then ``self`` is changed and returned).
+        """
+        leaves = self.leaves()
+        values = np.where(leaves.log_odds >= self.threshold_log, self.clamp_max_log, self.clamp_min_log)
+        tree = self if in_place else self.copy()
+        tree._load_leaves(LeafArrays(leaves.keys, leaves.depths, values.astype(np.float32)))
+        tree.prune()
+        return tree
+
+    def cast_ray(
+        self, origin: ArrayLike, direction: ArrayLike, max_range: float = -1.0, ignore_unknown: bool = False
+    ) -> NDArray[np.float64] | None:
+        """Centre of the first occupied voxel along a ray, or None (OctoMap castRay: an occupied origin voxel is
+        the hit; stops at unknown space unless ``ignore_unknown``; ``max_range`` <= 0 means unlimited)."""
+        return cast_ray(
+            origin, direction, self.resolution, lambda keys: self._values_at(pack(keys)), float(self.threshold_log),
+            max_range=max_range, ignore_unknown=ignore_unknown,
+        )  # fmt: skip
+
+    # -- files -------------------------------------------------------------------------------------------------
+    def write_binary(self, path: str | Path) -> None:
+        """Write a `.bt` file as OctoMap's writeBinary() does (max-likelihood, pruned), leaving this tree as is."""
+        from fleetslam.mapping.octomap_io import write_bt
+
+        write_bt(
+            path,
+            self.resolution,
+            self.leaves(),
+            clamp_min_log_odds=float(self.clamp_min_log),
+            clamp_max_log_odds=float(self.clamp_max_log),
+            occupancy_threshold_log_odds=float(self.threshold_log),
+        )
+
+    def write(self, path: str | Path) -> None:
+        """Write a full `.ot` file (every node's log-odds)."""
+        from fleetslam.mapping.octomap_io import write_ot
+
+        write_ot(path, self.resolution, self.leaves())
+
+    @classmethod
+    def read(cls, path: str | Path, **sensor_model: Any) -> OccupancyOctree:
+        """Read a `.bt` or `.ot` file."""
+        from fleetslam.mapping.octomap_io import read_octree_file
+
+        tree = cls(1.0, **sensor_model)
+        octree_file = read_octree_file(
+            path, clamp_min_log_odds=float(tree.clamp_min_log), clamp_max_log_odds=float(tree.clamp_max_log)
+        )
+        if octree_file.tree_id != "OcTree":
+            raise MapFileError(f"{path}: tree type {octree_file.tree_id} is not supported (OcTree only)")
+        return cls.from_leaves(octree_file.resolution, octree_file.leaves, **sensor_model)
+
+
+def _expand_to_finest(leaves: LeafArrays) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
+    fine = leaves.depths == TREE_DEPTH
+    keys = [leaves.keys[fine]]
+    values = [leaves.log_odds[fine]]
+    for i in np.flatnonzero(~fine):
+        size = 1 << (TREE_DEPTH - int(leaves.depths[i]))
+        if size > 64:
+            raise ValueError(f"refusing to expand a pruned leaf of {size}³ voxels; prune() the source less coarsely")
+        grid = np.stack(np.meshgrid(*(np.arange(size),) * 3, indexing="ij"), -1).reshape(-1, 3)
+        keys.append((leaves.keys[i].astype(np.int64) + grid).astype(np.uint16))
+        values.append(np.full(len(grid), leaves.log_odds[i], np.float32))
+    return np.concatenate(keys), np.concatenate(values)
+
+
+def canonical_leaves(leaves: LeafArrays) -> tuple[LeafArrays, int]:
+    """Canonical pruning of any leaf set: (pruned leaves in pre-order, number of inner nodes)."""
+    fine = leaves.depths == TREE_DEPTH
+    coarse_depths = leaves.depths[~fine].astype(np.int64)
+    shifts = (TREE_DEPTH - coarse_depths).astype(np.uint64)[:, None]
+    coarse_codes = pack(leaves.keys[~fine].astype(np.uint64) >> shifts) if (~fine).any() else np.zeros(0, np.uint64)
+    structure = canonical_structure(
+        pack(leaves.keys[fine]), leaves.log_odds[fine], coarse_depths, coarse_codes, leaves.log_odds[~fine]
+    )
+    return structure.leaves, structure.inner_count
+
+
+def canonical_structure(
+    fine_keys: NDArray[np.uint64],
+    fine_values: NDArray[np.float32],
+    coarse_depths: NDArray[np.int64],
+    coarse_codes: NDArray[np.uint64],
+    coarse_values: NDArray[np.float32],
+) -> _Structure:
+    """Canonical maximal pruning of a leaf field and its inner-node count.
+
+    ``fine_keys`` are packed finest keys; coarse leaves are given by depth, packed key at that depth, value.
+    """
+    # Work per level with keys scaled to that level: level d holds codes at depth d.
+    leaf_keys: dict[int, NDArray[np.uint64]] = {}
+    leaf_vals: dict[int, NDArray[np.float32]] = {}
+    by_depth: dict[int, tuple[NDArray[np.uint64], NDArray[np.float32]]] = {
+        int(d): (coarse_codes[coarse_depths == d], coarse_values[coarse_depths == d]) for d in np.unique(coarse_depths)
+    }
+    current_keys = fine_keys.astype(np.uint64)
+    current_vals = fine_values.astype(np.float32)
+    mask16 = np.uint64(0xFFFF)
+    inner_count = 0
+    inner_codes = np.zeros(0, np.uint64)  # inner nodes at the level being processed
+    for depth in range(TREE_DEPTH, 0, -1):
+        extra = by_depth.get(depth)
+        if extra is not None:
+            current_keys = np.concatenate([current_keys, extra[0]])
+            current_vals = np.concatenate([current_vals, extra[1].astype(np.float32)])
+        # Parent codes of leaves at this depth.
+        x = (current_keys >> np.uint64(32)) & mask16
+        y = (current_keys >> np.uint64(16)) & mask16
+        z = current_keys & mask16
+        parents = ((x >> np.uint64(1)) << np.uint64(32)) | ((y >> np.uint64(1)) << np.uint64(16)) | (z >> np.uint64(1))
+        collapse = np.zeros(len(current_keys), np.bool_)
+        new_parent_codes = np.zeros(0, np.uint64)
+        new_parent_vals = np.zeros(0, np.float32)
+        if len(current_keys):
+            order = np.argsort(parents)
+            p_sorted, v_sorted = parents[order], current_vals[order]
+            start = np.flatnonzero(np.concatenate(([True], p_sorted[1:] != p_sorted[:-1])))
+            uniq = p_sorted[start]
+            counts = np.diff(np.append(start, len(p_sorted)))
+            full = counts == 8
+            if full.any():
+                vmin = np.minimum.reduceat(v_sorted, start)
+                vmax = np.maximum.reduceat(v_sorted, start)
+                # Collapsible: 8 leaf children with exactly equal values and no inner sibling.
+                candidates = full & (vmin == vmax) & ~np.isin(uniq, _parents_of(inner_codes))
+                if candidates.any():
+                    new_parent_codes = uniq[candidates]
+                    new_parent_vals = vmin[candidates]
+                    collapse_sorted = np.repeat(candidates, counts)
+                    collapse[order] = collapse_sorted
+        kept_keys, kept_vals = current_keys[~collapse], current_vals[~collapse]
+        leaf_keys[depth], leaf_vals[depth] = kept_keys, kept_vals
+        inner_count += len(inner_codes)
+        # Inner nodes one level up: parents of kept leaves and of inner nodes, not collapsed.
+        up = np.unique(np.concatenate([_parents_of(kept_keys), _parents_of(inner_codes)]))
+        inner_codes = up
+        current_keys, current_vals = new_parent_codes, new_parent_vals
+    # Depth 0: the root is a leaf if everything collapsed into it (or a file said so), else an inner node.
+    root_leaf = by_depth.get(0)
+    if root_leaf is not None:
+        current_keys = np.concatenate([current_keys, root_leaf[0]])
+        current_vals = np.concatenate([current_vals, root_leaf[1].astype(np.float32)])
+    if len(current_keys):
+        leaf_keys[0], leaf_vals[0] = current_keys, current_vals
+    inner_count += len(inner_codes)
+    keys_list, depth_list, val_list = [], [], []
+    for depth, codes in leaf_keys.items():
+        if len(codes) == 0:
+            continue
+        shift = np.uint64(TREE_DEPTH - depth)
+        k = unpack(codes).astype(np.uint64) << shift
+        keys_list.append(k.astype(np.uint16))
+        depth_list.append(np.full(len(codes), depth, np.uint8))
+        val_list.append(leaf_vals[depth])
+    if not keys_list:
+        return _Structure(LeafArrays.empty(), 0)
+    leaves = LeafArrays.sorted(np.concatenate(keys_list), np.concatenate(depth_list), np.concatenate(val_list))
+    return _Structure(leaves, int(inner_count))
+
+
+def _parents_of(codes: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    if len(codes) == 0:
+        return codes
+    m = np.uint64(0xFFFF)
+    one = np.uint64(1)
+    x = ((codes >> np.uint64(32)) & m) >> one
+    y = ((codes >> np.uint64(16)) & m) >> one
+    z = (codes & m) >> one
+    return (x << np.uint64(32)) | (y << np.uint64(16)) | z
