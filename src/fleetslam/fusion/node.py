@@ -1,0 +1,132 @@
+"""The fleet map node: every agent's `map/octomap` in, the fused map in the fleet frame out.
+
+Agents are found in the graph (any `/<agent>/map/octomap` publisher) or listed in the parameters. An agent's map
+frame is placed in the fleet frame by its known start pose (``start_poses``); agents without one are placed at the
+fleet origin until inter-agent alignment gives a transform. Publishes ``/fleet/map/occupied`` (PointCloud2) and
+``/fleet/map/octomap`` when an agent's map changed; service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from fleetslam.config import ConfigModel
+from fleetslam.fusion.fleet_map import FleetMap
+from fleetslam.geometry import pose_from_xyz_rpy
+from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
+from fleetslam.mapping.octree import OccupancyOctree
+from fleetslam.mapping.products import pointcloud2_fields_and_data
+from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware.typesys import get_type, header, message_from_dict
+
+log = logging.getLogger(__name__)
+
+
+class FleetMapConfig(ConfigModel):
+    """Parameters of the fleet map node."""
+
+    resolution: float = Field(default=0.05, gt=0)
+    """Resolution of the agents' maps and of the fused map (m)."""
+    start_poses: dict[str, list[float]] = Field(default_factory=dict)
+    """Per agent, its map frame in the fleet frame as [x, y, z, roll, pitch, yaw] (m, rad)."""
+    agents: list[str] = Field(default_factory=list)
+    """Agents to fuse; empty: every agent publishing `map/octomap`."""
+    publish_rate: float = Field(default=0.5, gt=0)
+    """How often a changed fused map is published (Hz)."""
+    frame_id: str = "fleet"
+    """Frame of the fused map."""
+    save_path: str = "fleet.bt"
+    """Default file of the save service."""
+
+
+class FleetMapNode:
+    """Adapter between the middleware and a :class:`FleetMap`."""
+
+    def __init__(self, node: Node, config: FleetMapConfig | None = None) -> None:
+        self.node = node
+        self.config = config or FleetMapConfig()
+        self.fleet = FleetMap(self.config.resolution)
+        for agent, pose in self.config.start_poses.items():
+            self.fleet.set_transform(agent, pose_from_xyz_rpy(*pose))
+        self._subscribed: set[str] = set()
+        self._dirty = False
+        latched = QoSProfile(durability="transient_local", depth=1)
+        self.cloud_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "/fleet/map/occupied", latched)
+        self.octomap_pub = node.create_publisher("octomap_msgs/msg/Octomap", "/fleet/map/octomap", latched)
+        node.create_service("fleetslam_msgs/srv/SaveMap", "/fleet/map/save", self.on_save)
+        for agent in self.config.agents:
+            self._subscribe(agent)
+        node.create_timer(1.0, self._discover)
+        node.create_timer(1.0 / self.config.publish_rate, self.on_timer)
+
+    def _subscribe(self, agent: str) -> None:
+        if agent in self._subscribed:
+            return
+        self._subscribed.add(agent)
+        self.node.create_subscription(
+            "octomap_msgs/msg/Octomap",
+            f"/{agent}/map/octomap",
+            lambda msg: self.on_agent_map(agent, msg),
+            QoSProfile(durability="transient_local", depth=1),
+        )
+
+    def _discover(self) -> None:
+        if self.config.agents:
+            return
+        for topic in self.node.context.graph.topic_names_and_types():
+            parts = topic.strip("/").split("/")
+            if len(parts) == 3 and parts[1:] == ["map", "octomap"] and parts[0] != "fleet":
+                self._subscribe(parts[0])
+
+    def on_agent_map(self, agent: str, msg: Any) -> None:
+        if abs(msg.resolution - self.config.resolution) > 1e-9:
+            log.warning("%s: map resolution %g differs from the fleet's %g; ignored", agent, msg.resolution,
+                        self.config.resolution)  # fmt: skip
+            return
+        template = OccupancyOctree(self.config.resolution)
+        leaves = leaves_from_octomap_message(
+            bool(msg.binary), msg.id, np.asarray(msg.data),
+            clamp_min_log_odds=float(template.clamp_min_log), clamp_max_log_odds=float(template.clamp_max_log),
+        )  # fmt: skip
+        self.fleet.update_agent(agent, OccupancyOctree.from_leaves(self.config.resolution, leaves))
+        self._dirty = True
+
+    def on_timer(self) -> None:
+        if not self._dirty:
+            return
+        self._dirty = False
+        self.publish()
+
+    def publish(self) -> None:
+        fused = self.fleet.fused()
+        stamp = header(self.config.frame_id, self.node.now_ns())
+        centres, _ = fused.occupied_centers()
+        fields, step, data = pointcloud2_fields_and_data(centres)
+        field_type = get_type("sensor_msgs/msg/PointField")
+        cloud = get_type("sensor_msgs/msg/PointCloud2")(
+            header=stamp, height=1, width=len(centres),
+            fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
+            is_bigendian=False, point_step=step, row_step=step * len(centres),
+            data=np.frombuffer(data, np.uint8), is_dense=True,
+        )  # fmt: skip
+        self.cloud_pub.publish(cloud)
+        octomap = message_from_dict(
+            "octomap_msgs/msg/Octomap", octomap_message_fields(fused.resolution, fused.leaves())
+        )
+        octomap.header = stamp
+        self.octomap_pub.publish(octomap)
+
+    def on_save(self, request: Any) -> Any:
+        response = get_type("fleetslam_msgs/srv/SaveMap_Response")
+        path = Path(request.path or self.config.save_path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.fleet.fused().write_binary(path)
+        except OSError as err:
+            return response(success=False, message=f"{path}: {err.strerror}", path=str(path))
+        return response(success=True, message=f"agents {self.fleet.agents()}", path=str(path))

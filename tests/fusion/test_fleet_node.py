@@ -1,0 +1,44 @@
+"""The fleet map node over a real router: two agents' octomaps in, the fused map out."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
+from fleetslam.mapping.octomap_io import octomap_message_fields
+from fleetslam.mapping.octree import OccupancyOctree
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware.typesys import message_from_dict
+
+from ..support import wait_until
+
+
+def _agent_map() -> Any:
+    tree = OccupancyOctree(0.1)
+    ys, zs = np.meshgrid(np.arange(-0.95, 1.0, 0.1), np.arange(0.05, 1.0, 0.1))
+    wall = np.stack([np.full(ys.size, 2.05), ys.ravel(), zs.ravel()], axis=1)
+    tree.insert_point_cloud(wall, [0.0, 0.0, 0.5])
+    return message_from_dict("octomap_msgs/msg/Octomap", octomap_message_fields(tree.resolution, tree.leaves()))
+
+
+def test_fleet_node_fuses_agents_in_the_fleet_frame(make_context: Callable[..., Context]) -> None:
+    fleet = Node("fleet_map", context=make_context())
+    config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]}, publish_rate=5.0)
+    FleetMapNode(fleet, config)
+    clouds: list[Any] = []
+    fleet.create_subscription("sensor_msgs/msg/PointCloud2", "/fleet/map/occupied", clouds.append, QoSProfile(depth=5))
+    latched = QoSProfile(durability="transient_local", depth=1)
+    for agent in ("c3po", "r2d2"):
+        node = Node("mapping", context=make_context(agent))
+        node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched).publish(_agent_map())
+
+    def both_walls() -> bool:
+        if not clouds:
+            return False
+        xyz = np.frombuffer(bytes(clouds[-1].data), np.float32).reshape(-1, 3)
+        return bool((np.abs(xyz[:, 0] - 2.05) < 0.06).any() and (np.abs(xyz[:, 0] - 7.95) < 0.06).any())
+
+    assert wait_until(both_walls, 10.0)
