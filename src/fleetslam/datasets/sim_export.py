@@ -1,0 +1,80 @@
+"""The simulator's TUM-like exports (``fleetslam sim export-tum``).
+
+Same layout as a TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``) plus the camera model in
+``intrinsics.yaml`` (``fx fy cx cy width height`` and optionally ``depth_scale``) or ``camera.txt``
+(``fx fy cx cy [width height]``), and optionally wheel odometry in ``odometry.txt`` (TUM format, camera
+poses in the odometry frame) which becomes each frame's ``prior``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from fleetslam.datasets.base import Intrinsics, RGBDFrame
+from fleetslam.datasets.tum import TUM_DEPTH_SCALE, TumSource, read_intrinsics_file
+from fleetslam.errors import DatasetError
+from fleetslam.trajectory import Trajectory, read_tum
+
+
+def _nearest(trajectory: Trajectory, stamp: float, max_difference: float) -> int | None:
+    if len(trajectory) == 0:
+        return None
+    k = int(np.argmin(np.abs(trajectory.stamps - stamp)))
+    return k if abs(trajectory.stamps[k] - stamp) <= max_difference else None
+
+
+class SimExportSource(TumSource):
+    """A simulator export: a TUM folder with its own intrinsics, ground truth and wheel odometry."""
+
+    def __init__(self, root: Path, max_difference: float = 0.02) -> None:
+        intrinsics, depth_scale = self._read_camera(root)
+        super().__init__(root, intrinsics, depth_scale, max_difference)
+        self.max_difference = max_difference
+        odometry_path = root / "odometry.txt"
+        self.odometry = read_tum(odometry_path) if odometry_path.is_file() else None
+
+    @staticmethod
+    def _read_camera(root: Path) -> tuple[Intrinsics, float]:
+        yaml_path = root / "intrinsics.yaml"
+        depth_scale = TUM_DEPTH_SCALE
+        if yaml_path.is_file():
+            data = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+            if isinstance(data, dict) and "depth_scale" in data:
+                try:
+                    depth_scale = float(data["depth_scale"])
+                except (TypeError, ValueError) as err:
+                    raise DatasetError(f"{yaml_path}: depth_scale {data['depth_scale']!r} is not a number") from err
+            return read_intrinsics_file(yaml_path), depth_scale
+        camera_path = root / "camera.txt"
+        if camera_path.is_file():
+            # The simulator writes "fx fy cx cy width height depth_scale" on one line.
+            for line in camera_path.read_text(encoding="utf-8").splitlines():
+                fields = line.split("#", 1)[0].split()
+                if len(fields) == 7:
+                    try:
+                        depth_scale = float(fields[6])
+                    except ValueError as err:
+                        raise DatasetError(f"{camera_path}: depth_scale {fields[6]!r} is not a number") from err
+                    break
+            return read_intrinsics_file(camera_path), depth_scale
+        raise DatasetError(f"{root}: simulator export has neither intrinsics.yaml nor camera.txt")
+
+    def __iter__(self) -> Iterator[RGBDFrame]:
+        gt = self.groundtruth()
+        for frame in super().__iter__():
+            if self.odometry is not None:
+                k = _nearest(self.odometry, frame.stamp, self.max_difference)
+                frame.prior = None if k is None else self.odometry.poses[k]
+            if gt is not None:
+                k = _nearest(gt, frame.stamp, self.max_difference)
+                frame.groundtruth = None if k is None else gt.poses[k]
+            yield frame
+
+
+def open_sim_export(path: Path, *, max_difference: float = 0.02) -> SimExportSource:
+    """Open a simulator export folder."""
+    return SimExportSource(path, max_difference)

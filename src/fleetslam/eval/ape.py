@@ -1,0 +1,153 @@
+"""Absolute and relative pose error via evo, with the TUM benchmark tools' conventions.
+
+Conventions: poses are associated by timestamp within ``max_diff`` (0.02 s, like ``associate.py``);
+the estimate is aligned to the ground truth with Umeyama/Horn SE(3) (``align=True``, no scale unless
+``scale=True``), as ``evaluate_ate.py`` does; APE is the translational error in metres; RPE is the
+translational error of relative motions over ``delta`` frames or metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from fleetslam.errors import DatasetError, MissingExtraError
+from fleetslam.trajectory import Trajectory
+
+
+def _evo() -> Any:
+    try:
+        import evo.core.geometry
+        import evo.core.metrics
+        import evo.core.sync
+        import evo.core.trajectory
+    except ImportError as err:
+        raise MissingExtraError("evo", "eval") from err
+    return evo
+
+
+@dataclass
+class ErrorStats:
+    """Statistics of one metric, in metres."""
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    pairs: int
+    """Associated pose pairs (APE) or relative pairs (RPE)."""
+    conventions: str
+    """How the figures were computed."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+ApeResult = ErrorStats
+RpeResult = ErrorStats
+
+
+def _to_evo(trajectory: Trajectory) -> Any:
+    evo = _evo()
+    return evo.core.trajectory.PoseTrajectory3D(poses_se3=list(trajectory.poses), timestamps=trajectory.stamps)
+
+
+def _associate(gt: Trajectory, est: Trajectory, max_diff: float) -> tuple[Any, Any]:
+    evo = _evo()
+    try:
+        ref, est_evo = evo.core.sync.associate_trajectories(_to_evo(gt), _to_evo(est), max_diff=max_diff)
+    except evo.core.sync.SyncException as err:
+        raise DatasetError(f"trajectories cannot be associated within {max_diff} s: {err}") from err
+    return ref, est_evo
+
+
+def _stats(metric: Any, pairs: int, conventions: str) -> ErrorStats:
+    s = metric.get_all_statistics()
+    return ErrorStats(
+        float(s["rmse"]),
+        float(s["mean"]),
+        float(s["median"]),
+        float(s["std"]),
+        float(s["min"]),
+        float(s["max"]),
+        pairs,
+        conventions,
+    )
+
+
+def ape(
+    gt: Trajectory, est: Trajectory, *, align: bool = True, scale: bool = False, max_diff: float = 0.02
+) -> ApeResult:
+    """Absolute trajectory error (translation, metres) of ``est`` against ``gt``."""
+    evo = _evo()
+    ref, est_evo = _associate(gt, est, max_diff)
+    if align or scale:
+        try:
+            est_evo.align(ref, correct_scale=scale, correct_only_scale=scale and not align)
+        except evo.core.geometry.GeometryException as err:
+            raise DatasetError(f"trajectories cannot be aligned (degenerate, e.g. a straight line): {err}") from err
+    metric = evo.core.metrics.APE(evo.core.metrics.PoseRelation.translation_part)
+    metric.process_data((ref, est_evo))
+    conv = (
+        f"APE translation [m]; timestamps associated within {max_diff} s; "
+        f"alignment: {'Umeyama SE(3)' if align else 'none'}{' + scale (Sim(3))' if scale else ''}"
+    )
+    return _stats(metric, ref.num_poses, conv)
+
+
+def rpe(
+    gt: Trajectory,
+    est: Trajectory,
+    *,
+    delta: float = 1.0,
+    delta_unit: Literal["f", "m"] = "f",
+    max_diff: float = 0.02,
+    all_pairs: bool = False,
+) -> RpeResult:
+    """Relative pose error (translation, metres) over ``delta`` frames (``f``) or metres (``m``)."""
+    evo = _evo()
+    ref, est_evo = _associate(gt, est, max_diff)
+    unit = evo.core.metrics.Unit.frames if delta_unit == "f" else evo.core.metrics.Unit.meters
+    metric = evo.core.metrics.RPE(
+        evo.core.metrics.PoseRelation.translation_part, delta=delta, delta_unit=unit, all_pairs=all_pairs
+    )
+    try:
+        metric.process_data((ref, est_evo))
+    except evo.core.metrics.MetricsException as err:
+        raise DatasetError(f"RPE with delta {delta} {delta_unit}: {err}") from err
+    conv = (
+        f"RPE translation [m] over {delta} {'frames' if delta_unit == 'f' else 'm'}; timestamps associated "
+        f"within {max_diff} s; no alignment (relative)"
+    )
+    return _stats(metric, len(metric.error), conv)
+
+
+def plot_ape(
+    gt: Trajectory, est: Trajectory, path: str, *, align: bool = True, scale: bool = False, max_diff: float = 0.02
+) -> None:
+    """PNG of both trajectories (top view, x-y) after association and alignment."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as err:
+        raise MissingExtraError("matplotlib", "eval") from err
+    ref, est_evo = _associate(gt, est, max_diff)
+    if align or scale:
+        est_evo.align(ref, correct_scale=scale)
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(ref.positions_xyz[:, 0], ref.positions_xyz[:, 1], "k--", label="ground truth")
+    ax.plot(est_evo.positions_xyz[:, 0], est_evo.positions_xyz[:, 1], "b-", label="estimate")
+    distances = np.linalg.norm(ref.positions_xyz - est_evo.positions_xyz, axis=1)
+    ax.set_title(f"APE RMSE {np.sqrt(np.mean(distances**2)) * 100:.2f} cm")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.axis("equal")
+    ax.legend()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,213 @@
+"""Pose-graph back-end on GTSAM: odometry and loop constraints, iSAM2 increments, LM on loop closures.
+
+Information matrices are 6×6 over ``(x, y, z, roll, pitch, yaw)`` like :class:`fleetslam.slam.signature.Link`
+(translation first); GTSAM's Pose3 tangent is rotation first, so blocks are swapped here.
+
+A new loop is tested by a full Levenberg–Marquardt optimisation; if afterwards any constraint's translational
+error exceeds ``optimize_max_error`` times its expected standard deviation, the loop is rejected and removed
+(RTAB-Map's RGBD/OptimizeMaxError). Accepted loops restart iSAM2 from the LM solution.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.errors import MissingExtraError, SlamError
+
+logger = logging.getLogger(__name__)
+
+
+def _gtsam() -> Any:
+    try:
+        import gtsam
+    except ImportError as err:
+        raise MissingExtraError("gtsam", "slam") from err
+    return gtsam
+
+
+def information_from_std(translation_std: float, rotation_std_rad: float) -> NDArray[np.float64]:
+    """Diagonal 6×6 information over (x, y, z, roll, pitch, yaw)."""
+    return np.diag([1.0 / translation_std**2] * 3 + [1.0 / rotation_std_rad**2] * 3)
+
+
+def _to_gtsam_information(information: NDArray[np.float64]) -> NDArray[np.float64]:
+    perm = [3, 4, 5, 0, 1, 2]
+    return np.asarray(information, dtype=np.float64)[np.ix_(perm, perm)]
+
+
+@dataclass
+class Constraint:
+    """An edge ``T_ab`` (pose of b in a's frame)."""
+
+    a: int
+    b: int
+    transform: NDArray[np.float64]
+    information: NDArray[np.float64]
+    kind: str
+    """'odometry' or 'loop'."""
+
+
+class PoseGraph:
+    """Pose3 graph: nodes by integer id, odometry and loop constraints."""
+
+    def __init__(
+        self, robust_kernel: str = "huber", robust_parameter: float = 1.345, optimize_max_error: float = 3.0
+    ) -> None:
+        self._g = _gtsam()
+        self.robust_kernel = robust_kernel
+        self.robust_parameter = robust_parameter
+        self.optimize_max_error = optimize_max_error
+        self._graph = self._g.NonlinearFactorGraph()
+        self._values = self._g.Values()
+        self._constraints: list[Constraint] = []
+        self._factor_of: list[int] = []
+        self._isam = self._g.ISAM2()
+        self._pending_graph = self._g.NonlinearFactorGraph()
+        self._pending_values = self._g.Values()
+        self._estimate: dict[int, NDArray[np.float64]] = {}
+        self._anchored = False
+
+    def __len__(self) -> int:
+        return int(self._values.size())
+
+    def _noise(self, information: NDArray[np.float64], robust: bool) -> Any:
+        g = self._g
+        model = g.noiseModel.Gaussian.Information(_to_gtsam_information(information))
+        if not robust or self.robust_kernel == "none":
+            return model
+        kernel = (
+            g.noiseModel.mEstimator.Huber.Create(self.robust_parameter)
+            if self.robust_kernel == "huber"
+            else g.noiseModel.mEstimator.Cauchy.Create(self.robust_parameter)
+        )
+        return g.noiseModel.Robust.Create(kernel, model)
+
+    def add_node(self, node_id: int, pose_guess: NDArray[np.float64]) -> None:
+        """Add a pose; the first node is anchored with a tight prior."""
+        g = self._g
+        if self._values.exists(node_id):
+            raise SlamError(f"pose graph: node {node_id} already exists")
+        pose = g.Pose3(np.asarray(pose_guess, dtype=np.float64))
+        self._values.insert(node_id, pose)
+        self._pending_values.insert(node_id, pose)
+        self._estimate[node_id] = np.asarray(pose_guess, dtype=np.float64).copy()
+        if not self._anchored:
+            prior = g.PriorFactorPose3(node_id, pose, g.noiseModel.Isotropic.Sigma(6, 1e-6))
+            self._graph.add(prior)
+            self._pending_graph.add(prior)
+            self._anchored = True
+
+    def _check_nodes(self, a: int, b: int) -> None:
+        for n in (a, b):
+            if not self._values.exists(n):
+                raise SlamError(f"pose graph: node {n} does not exist (add_node first)")
+
+    def _factor(self, a: int, b: int, T_ab: NDArray[np.float64], information: NDArray[np.float64], robust: bool) -> Any:
+        g = self._g
+        return g.BetweenFactorPose3(a, b, g.Pose3(np.asarray(T_ab, dtype=np.float64)), self._noise(information, robust))
+
+    def add_odometry(self, a: int, b: int, T_ab: NDArray[np.float64], information: NDArray[np.float64]) -> None:
+        """Constraint between consecutive nodes (Gaussian, no kernel)."""
+        self._check_nodes(a, b)
+        factor = self._factor(a, b, T_ab, information, robust=False)
+        self._graph.add(factor)
+        self._pending_graph.add(factor)
+        self._constraints.append(
+            Constraint(a, b, np.asarray(T_ab, float).copy(), np.asarray(information, float), "odometry")
+        )
+
+    def add_loop(self, a: int, b: int, T_ab: NDArray[np.float64], information: NDArray[np.float64]) -> bool:
+        """Add a loop closure, re-optimise everything (LM) and keep it only if the result is consistent."""
+        g = self._g
+        self._check_nodes(a, b)
+        self.flush()
+        candidate = Constraint(a, b, np.asarray(T_ab, float).copy(), np.asarray(information, float), "loop")
+        graph = g.NonlinearFactorGraph(self._graph)
+        graph.add(self._factor(a, b, T_ab, information, robust=True))
+        initial = self._current_values()
+        params = g.LevenbergMarquardtParams()
+        params.setMaxIterations(100)
+        result = g.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        if self.optimize_max_error > 0:
+            worst, worst_constraint = self._worst_error([*self._constraints, candidate], result)
+            if worst > self.optimize_max_error:
+                logger.info(
+                    "loop %d-%d rejected: constraint %d-%d error is %.1f std (max %.1f)",
+                    a,
+                    b,
+                    worst_constraint.a,
+                    worst_constraint.b,
+                    worst,
+                    self.optimize_max_error,
+                )
+                return False
+        self._graph = graph
+        self._constraints.append(candidate)
+        self._values = result
+        self._isam = g.ISAM2()
+        self._isam.update(self._graph, result)
+        self._pending_graph = g.NonlinearFactorGraph()
+        self._pending_values = g.Values()
+        self._store(result)
+        return True
+
+    def _worst_error(self, constraints: list[Constraint], values: Any) -> tuple[float, Constraint]:
+        worst, worst_c = 0.0, constraints[-1]
+        for c in constraints:
+            pa = values.atPose3(c.a).matrix()
+            pb = values.atPose3(c.b).matrix()
+            error = np.linalg.inv(c.transform) @ np.linalg.inv(pa) @ pb
+            std = float(np.sqrt(1.0 / max(np.max(np.diag(c.information)[:3]), 1e-12)))
+            ratio = float(np.linalg.norm(error[:3, 3])) / std
+            if ratio > worst:
+                worst, worst_c = ratio, c
+        return worst, worst_c
+
+    def _current_values(self) -> Any:
+        values = self._g.Values()
+        for node_id, pose in self._estimate.items():
+            values.insert(node_id, self._g.Pose3(pose))
+        return values
+
+    def flush(self) -> None:
+        """Apply pending nodes and constraints with one iSAM2 update."""
+        if self._pending_values.size() == 0 and self._pending_graph.size() == 0:
+            return
+        self._isam.update(self._pending_graph, self._pending_values)
+        self._pending_graph = self._g.NonlinearFactorGraph()
+        self._pending_values = self._g.Values()
+        self._store(self._isam.calculateEstimate())
+
+    def _store(self, values: Any) -> None:
+        for node_id in list(self._estimate):
+            if values.exists(node_id):
+                self._estimate[node_id] = values.atPose3(node_id).matrix()
+
+    def optimize(self) -> dict[int, NDArray[np.float64]]:
+        """Current optimised poses ``T_world_node`` by id (iSAM2 estimate)."""
+        self.flush()
+        return {k: v.copy() for k, v in self._estimate.items()}
+
+    def optimize_full(self, max_iterations: int = 100) -> dict[int, NDArray[np.float64]]:
+        """A full Levenberg–Marquardt optimisation of the whole graph from the current estimate."""
+        g = self._g
+        self.flush()
+        params = g.LevenbergMarquardtParams()
+        params.setMaxIterations(max_iterations)
+        result = g.LevenbergMarquardtOptimizer(self._graph, self._current_values(), params).optimize()
+        self._store(result)
+        return {k: v.copy() for k, v in self._estimate.items()}
+
+    def constraints(self) -> list[Constraint]:
+        """Odometry and accepted loop constraints, in insertion order."""
+        return list(self._constraints)
+
+
+def make_pose_graph(config: Any) -> PoseGraph:
+    """Build from a :class:`fleetslam.slam.config.BackendConfig`."""
+    return PoseGraph(config.robust_kernel, config.robust_parameter, config.optimize_max_error)

@@ -1,0 +1,136 @@
+"""Configuration of the RGB-D graph SLAM: features, odometry, back-end, and the loop-closure side's sections.
+
+Defaults follow RTAB-Map where a parameter has an equivalent (named per field).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from fleetslam.config import ConfigModel
+from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
+
+
+class FeatureConfig(ConfigModel):
+    """Keypoint detection and description."""
+
+    kind: Literal["orb", "sift", "akaze"] = "orb"
+    """Detector/descriptor: 'orb' (binary, fast, default), 'sift' (float), 'akaze' (binary)."""
+
+    max_features: int = Field(default=1000, ge=10)
+    """Keypoints kept per image (RTAB-Map Vis/MaxFeatures)."""
+
+    grid_rows: int = Field(default=4, ge=1)
+    """Rows of the bucketing grid: the best keypoints are kept per cell for even image coverage."""
+
+    grid_cols: int = Field(default=4, ge=1)
+    """Columns of the bucketing grid."""
+
+    orb_fast_threshold: int = Field(default=8, ge=1)
+    """FAST threshold of the ORB detector (lower finds more corners on weak texture)."""
+
+    orb_levels: int = Field(default=4, ge=1)
+    """ORB pyramid levels (fewer is faster; frame-to-frame motion is small)."""
+
+
+class OdometryConfig(ConfigModel):
+    """Frame-to-local-map visual odometry (RTAB-Map Odom/Strategy=0, F2M)."""
+
+    min_inliers: int = Field(default=15, ge=4)
+    """Below this many PnP inliers tracking is lost (RTAB-Map Vis/MinInliers)."""
+
+    match_ratio: float = Field(default=0.8, gt=0.0, le=1.0)
+    """Nearest-neighbour distance ratio when matching frame descriptors to the local map."""
+
+    pnp_reprojection_error: float = Field(default=2.0, gt=0.0)
+    """RANSAC inlier threshold in pixels (RTAB-Map Vis/PnPReprojError)."""
+
+    pnp_iterations: int = Field(default=100, ge=10)
+    """RANSAC iterations (RTAB-Map Vis/Iterations)."""
+
+    min_depth: float = Field(default=0.1, ge=0.0)
+    """Closer depth readings are ignored (metres)."""
+
+    max_depth: float = Field(default=6.0, gt=0.0)
+    """Farther depth readings are ignored (metres; Kinect noise grows with z²)."""
+
+    keyframe_inlier_ratio: float = Field(default=0.4, ge=0.0, le=1.0)
+    """New keyframe when inliers fall below this ratio of the features of the last keyframe
+    (RTAB-Map Odom/KeyFrameThr)."""
+
+    keyframe_translation: float = Field(default=0.25, gt=0.0)
+    """New keyframe after this much translation from the last one (metres)."""
+
+    keyframe_rotation_deg: float = Field(default=15.0, gt=0.0)
+    """New keyframe after this much rotation from the last one (degrees)."""
+
+    local_map_size: int = Field(default=3000, ge=100)
+    """Maximum 3D points in the local map; the oldest leave first (RTAB-Map OdomF2M/MaxSize)."""
+
+    search_radius: float = Field(default=30.0, gt=0.0)
+    """Matches are searched within this many pixels of each map point's predicted projection."""
+
+    max_prediction_error: float = Field(default=0.1, gt=0.0)
+    """A PnP pose farther than this from the motion prediction (metres) is a failure, not motion: at 30 Hz
+    a ground robot cannot jump that far between frames."""
+
+    max_prediction_error_deg: float = Field(default=5.0, gt=0.0)
+    """A PnP pose rotated more than this from the prediction (degrees) is a failure."""
+
+    use_prior: bool = True
+    """Use a per-frame prior pose (wheel odometry) as motion prediction and as fallback when lost."""
+
+
+class BackendConfig(ConfigModel):
+    """GTSAM pose graph."""
+
+    robust_kernel: Literal["none", "huber", "cauchy"] = "huber"
+    """Robust kernel on loop-closure constraints."""
+
+    robust_parameter: float = Field(default=1.345, gt=0.0)
+    """Kernel width (in standard deviations)."""
+
+    optimize_max_error: float = Field(default=3.0, ge=0.0)
+    """Reject a loop closure if, after optimisation, a constraint's translational error exceeds this factor
+    of its expected standard deviation (RTAB-Map RGBD/OptimizeMaxError; 0 disables)."""
+
+    odometry_translation_std: float = Field(default=0.01, gt=0.0)
+    """Standard deviation of odometry translation between keyframes (metres)."""
+
+    odometry_rotation_std_deg: float = Field(default=0.5, gt=0.0)
+    """Standard deviation of odometry rotation between keyframes (degrees)."""
+
+    loop_translation_std: float = Field(default=0.02, gt=0.0)
+    """Standard deviation of loop-closure translation (metres)."""
+
+    loop_rotation_std_deg: float = Field(default=1.0, gt=0.0)
+    """Standard deviation of loop-closure rotation (degrees)."""
+
+
+class SlamConfig(ConfigModel):
+    """RGB-D graph SLAM, RTAB-Map style."""
+
+    features: FeatureConfig = Field(default_factory=FeatureConfig)
+    """Keypoints and descriptors."""
+
+    odometry: OdometryConfig = Field(default_factory=OdometryConfig)
+    """Visual odometry."""
+
+    backend: BackendConfig = Field(default_factory=BackendConfig)
+    """Pose-graph optimisation."""
+
+    loop_closure: LoopClosureConfig = Field(default_factory=lambda: LoopClosureConfig.model_validate({}))
+    """Appearance-based loop-closure detection."""
+
+    memory: MemoryConfig = Field(default_factory=lambda: MemoryConfig.model_validate({}))
+    """STM/WM/LTM memory management."""
+
+    loop_closure_enabled: bool = True
+    """Detect loop closures (off: odometry and pose graph only)."""
+
+    loop_descriptor_fallback: bool = False
+    """Verify hypotheses that the word-based verifier refused for too few unique-word correspondences by
+    direct descriptor matching + PnP RANSAC. Off by default: on repetitive scenes (floor tiles, identical
+    shelves) it accepted wrong transforms in the simulated plant."""

@@ -1,0 +1,115 @@
+"""Keypoints and descriptors with OpenCV, bucketed on a grid so that they cover the image evenly."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.errors import MissingExtraError
+
+
+def import_cv2() -> Any:
+    """OpenCV, or a MissingExtraError naming the extra."""
+    try:
+        import cv2
+    except ImportError as err:
+        raise MissingExtraError("cv2", "slam") from err
+    return cv2
+
+
+@dataclass
+class Features:
+    """``keypoints (N, 2) float32`` pixel coordinates, ``descriptors (N, D)``, detector ``responses (N,)``."""
+
+    keypoints: NDArray[np.float32]
+    descriptors: NDArray[Any]
+    responses: NDArray[np.float32]
+
+    def __len__(self) -> int:
+        return int(self.keypoints.shape[0])
+
+    def subset(self, index: NDArray[Any]) -> Features:
+        return Features(self.keypoints[index], self.descriptors[index], self.responses[index])
+
+
+def bucket(
+    points: NDArray[np.float32],
+    responses: NDArray[np.float32],
+    shape: tuple[int, int],
+    rows: int,
+    cols: int,
+    max_total: int,
+) -> NDArray[np.intp]:
+    """Indices of at most ``max_total`` points: the strongest ``max_total / (rows·cols)`` of every grid cell
+    first (even coverage), then the budget that weak cells left unused goes to the strongest of the rest."""
+    if len(points) <= max_total:
+        return np.arange(len(points), dtype=np.intp)
+    h, w = shape
+    r = np.clip((points[:, 1] * rows / h).astype(np.intp), 0, rows - 1)
+    c = np.clip((points[:, 0] * cols / w).astype(np.intp), 0, cols - 1)
+    cell = r * cols + c
+    per_cell = max(1, max_total // (rows * cols))
+    order = np.lexsort((-responses, cell))
+    sorted_cells = cell[order]
+    starts = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.arange(len(order)) - starts
+    chosen = order[rank < per_cell]
+    rest = order[rank >= per_cell]
+    spare = max_total - len(chosen)
+    if spare > 0 and len(rest):
+        chosen = np.concatenate([chosen, rest[np.argsort(-responses[rest])[:spare]]])
+    return np.sort(chosen)
+
+
+class FeatureExtractor:
+    """ORB (default), SIFT or AKAZE on a grayscale image, bucketed on a grid."""
+
+    def __init__(
+        self,
+        kind: str = "orb",
+        max_features: int = 1000,
+        grid_rows: int = 4,
+        grid_cols: int = 4,
+        orb_fast_threshold: int = 12,
+        orb_levels: int = 4,
+    ) -> None:
+        cv2 = import_cv2()
+        self.kind = kind
+        self.max_features = max_features
+        self.grid = (grid_rows, grid_cols)
+        # Detect more than kept so that bucketing can choose per cell.
+        n_detect = 2 * max_features
+        if kind == "orb":
+            self._detector = cv2.ORB_create(
+                nfeatures=n_detect, nlevels=orb_levels, fastThreshold=orb_fast_threshold, scoreType=cv2.ORB_FAST_SCORE
+            )
+        elif kind == "sift":
+            self._detector = cv2.SIFT_create(nfeatures=n_detect)
+        elif kind == "akaze":
+            self._detector = cv2.AKAZE_create()
+        else:
+            raise ValueError(f"feature kind {kind!r} is not one of orb, sift, akaze")
+
+    @property
+    def binary(self) -> bool:
+        """Whether descriptors are binary (Hamming distance)."""
+        return self.kind in ("orb", "akaze")
+
+    def detect(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Features:
+        """Keypoints and descriptors of one grayscale image."""
+        keypoints = self._detector.detect(gray, mask)
+        if keypoints:
+            pts = np.array([k.pt for k in keypoints], dtype=np.float32)
+            resp = np.array([k.response for k in keypoints], dtype=np.float32)
+            keep = bucket(pts, resp, gray.shape[:2], self.grid[0], self.grid[1], self.max_features)
+            keypoints = [keypoints[i] for i in keep]
+        keypoints, descriptors = self._detector.compute(gray, keypoints)
+        if descriptors is None or not keypoints:
+            dim, dtype = (32, np.uint8) if self.binary else (128, np.float32)
+            return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), np.zeros(0, np.float32))
+        pts = np.array([k.pt for k in keypoints], dtype=np.float32).reshape(-1, 2)
+        resp = np.array([k.response for k in keypoints], dtype=np.float32)
+        return Features(pts, descriptors, resp)

@@ -1,0 +1,46 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fleetslam.errors import DatasetError
+from fleetslam.eval import ape, rpe
+from fleetslam.geometry import make_pose
+from fleetslam.trajectory import Trajectory
+
+
+def _line(n: int, offset: np.ndarray | None = None, stamp_shift: float = 0.0) -> Trajectory:
+    poses = []
+    for i in range(n):
+        p = make_pose(translation=[0.1 * i, np.sin(i / 3.0), 0.0])
+        if offset is not None:
+            p[:3, 3] += offset[i]
+        poses.append(p)
+    return Trajectory.from_lists([i * 0.1 + stamp_shift for i in range(n)], poses)
+
+
+def test_ape_without_alignment_equals_hand_computed_offset() -> None:
+    offsets = np.zeros((20, 3))
+    offsets[::2, 2] = 0.03
+    offsets[1::2, 2] = 0.01
+    result = ape(_line(20), _line(20, offsets), align=False)
+    assert result.rmse == pytest.approx(np.sqrt((0.03**2 + 0.01**2) / 2))
+    assert result.pairs == 20
+    assert "none" in result.conventions
+
+
+def test_ape_alignment_removes_a_constant_offset() -> None:
+    offsets = np.tile([0.5, -0.2, 0.1], (20, 1))
+    assert ape(_line(20), _line(20, offsets)).rmse == pytest.approx(0.0, abs=1e-9)
+
+
+def test_association_tolerance_and_rpe() -> None:
+    gt = _line(20)
+    est = _line(20, stamp_shift=0.01)
+    assert ape(gt, est).pairs == 20
+    with pytest.raises(DatasetError):
+        ape(gt, _line(20, stamp_shift=0.05))
+    offsets = np.zeros((20, 3))
+    offsets[10:, 0] = 0.05
+    r = rpe(gt, _line(20, offsets), delta=1, delta_unit="f")
+    assert r.max == pytest.approx(0.05)

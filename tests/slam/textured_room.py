@@ -1,0 +1,77 @@
+"""A textured box room rendered by ray casting with a pinhole camera: RGB-D frames with exact depth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.datasets.base import Intrinsics
+
+HALF_SIZE = 2.5
+TEXELS = 512
+
+
+def make_textures(rng: np.random.Generator) -> list[NDArray[np.uint8]]:
+    """One texture per face: random shapes of random grey levels give ORB plenty of corners."""
+    textures = []
+    for _ in range(6):
+        tex = np.full((TEXELS, TEXELS), 128, np.uint8)
+        for _ in range(350):
+            x, y = (int(v) for v in rng.integers(0, TEXELS, 2))
+            size = int(rng.integers(4, 30))
+            shade = int(rng.integers(0, 256))
+            if rng.random() < 0.5:
+                cv2.rectangle(tex, (x, y), (x + size, y + int(rng.integers(4, 30))), shade, -1)
+            else:
+                cv2.circle(tex, (x, y), size // 2, shade, -1)
+        textures.append(tex)
+    return textures
+
+
+def render(
+    pose: NDArray[np.float64], intrinsics: Intrinsics, textures: list[NDArray[np.uint8]]
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """RGB (grey in 3 channels) and depth (metres, camera z) of the room seen from ``T_world_camera``.
+
+    The image is rendered at twice the resolution and averaged down: without anti-aliasing, corners jump
+    by whole texels between views and keypoints carry a pixel of noise that no real camera has."""
+    k = intrinsics
+    fine = Intrinsics(2 * k.fx, 2 * k.fy, 2 * k.cx + 0.5, 2 * k.cy + 0.5, 2 * k.width, 2 * k.height)
+    gray_fine, _ = _raycast(pose, fine, textures)
+    _, depth = _raycast(pose, k, textures)
+    gray = cv2.resize(gray_fine, (k.width, k.height), interpolation=cv2.INTER_AREA)
+    return np.repeat(gray[:, :, None], 3, axis=2), depth
+
+
+def _raycast(
+    pose: NDArray[np.float64], intrinsics: Intrinsics, textures: list[NDArray[np.uint8]]
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    w, h = intrinsics.width, intrinsics.height
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays_cam = np.stack(
+        [(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones_like(u)], axis=-1
+    ).reshape(-1, 3)
+    dirs = rays_cam @ pose[:3, :3].T
+    origin = pose[:3, 3]
+    best_t = np.full(dirs.shape[0], np.inf)
+    best_face = np.zeros(dirs.shape[0], np.intp)
+    for axis in range(3):
+        d = dirs[:, axis]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for sign_index, wall in enumerate((-HALF_SIZE, HALF_SIZE)):
+                t = (wall - origin[axis]) / d
+                ok = (t > 0) & (t < best_t)
+                best_t = np.where(ok, t, best_t)
+                best_face = np.where(ok, 2 * axis + sign_index, best_face)
+    hits = origin + dirs * best_t[:, None]
+    gray = np.zeros(dirs.shape[0], np.uint8)
+    for face in range(6):
+        sel = best_face == face
+        axis = face // 2
+        a, b = [k for k in range(3) if k != axis]
+        ta = np.clip(((hits[sel, a] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1)).astype(np.intp), 0, TEXELS - 1)
+        tb = np.clip(((hits[sel, b] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1)).astype(np.intp), 0, TEXELS - 1)
+        gray[sel] = textures[face][tb, ta]
+    depth = (best_t * rays_cam[:, 2]).reshape(h, w).astype(np.float32)
+    return gray.reshape(h, w), depth
