@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.config import dump_config
-from fleetslam.datasets.base import RGBDSource
+from fleetslam.datasets.base import RGBDFrame, RGBDSource
 from fleetslam.geometry import invert
 from fleetslam.slam.backend import PoseGraph, information_from_std, make_pose_graph
 from fleetslam.slam.config import SlamConfig
@@ -46,13 +46,31 @@ class SlamResult:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass
+class StepResult:
+    """What one frame produced."""
+
+    pose: NDArray[np.float64]
+    """Camera pose T_map_camera after the graph's latest optimisation."""
+    odometry: Any
+    """The odometry result (pose in the odometry frame, features of keyframes)."""
+    keyframe_id: int | None
+    """Graph node id when this frame became a keyframe."""
+    loop_closed: bool
+    """A loop closure was accepted on this frame (keyframe poses moved)."""
+
+
 class SlamPipeline:
     """Odometry + loop closure + pose graph over a frame stream (pure; :func:`run_offline` writes files)."""
 
-    def __init__(self, config: SlamConfig, source: RGBDSource) -> None:
+    def __init__(self, config: SlamConfig, source: RGBDSource | None = None, *, intrinsics: Any = None) -> None:
+        """``source`` for offline runs; a live node passes only the camera ``intrinsics`` and calls :meth:`step`."""
+        if source is None and intrinsics is None:
+            raise ValueError("SlamPipeline needs a source or the camera intrinsics")
         self.config = config
         self.source = source
-        self.odometry: VisualOdometry = make_odometry(config.odometry, config.features, source.intrinsics)
+        self.intrinsics = intrinsics if intrinsics is not None else source.intrinsics  # type: ignore[union-attr]
+        self.odometry: VisualOdometry = make_odometry(config.odometry, config.features, self.intrinsics)
         self.graph: PoseGraph = make_pose_graph(config.backend)
         b = config.backend
         self.odometry_information = information_from_std(
@@ -64,56 +82,90 @@ class SlamPipeline:
         if config.loop_closure_enabled:
             from fleetslam.slam.loop_closure import make_loop_closure_detector
 
-            self.detector = make_loop_closure_detector(config.loop_closure, config.memory, source.intrinsics.K)
+            self.detector = make_loop_closure_detector(config.loop_closure, config.memory, self.intrinsics.K)
+        self._stamps: list[float] = []
+        self._odom_poses: list[NDArray[np.float64]] = []
+        self._frame_keyframe: list[int] = []
+        self.keyframe_odometry: dict[int, NDArray[np.float64]] = {}
+        """Odometry pose of every keyframe (graph node id → T_world_camera before optimisation)."""
+        self.keyframe_stamps: dict[int, float] = {}
+        self._accepted: list[tuple[int, int]] = []
+        self._rejected: list[tuple[int, int]] = []
+        self._per_frame: list[dict[str, Any]] = []
+        self._last_kf: int | None = None
+
+    def step(self, frame: RGBDFrame) -> StepResult:
+        """Process one frame: track it, and on a keyframe add it to the graph and look for a loop."""
+        t0 = time.perf_counter()
+        result = self.odometry.track(frame.rgb, frame.depth, frame.stamp, frame.prior)
+        t_odom = (time.perf_counter() - t0) * 1e3
+        record: dict[str, Any] = {
+            "index": frame.index,
+            "stamp": frame.stamp,
+            "odometry_ms": round(t_odom, 3),
+            "inliers": result.inliers,
+            "keyframe": result.is_keyframe,
+            "lost": result.lost,
+        }
+        new_keyframe = None
+        loops_before = len(self._accepted)
+        if result.is_keyframe or self._last_kf is None:
+            t1 = time.perf_counter()
+            self._last_kf = self._add_keyframe(
+                frame.stamp, result, self._last_kf, self.keyframe_odometry, self._accepted, self._rejected, record
+            )
+            new_keyframe = self._last_kf
+            self.keyframe_stamps[self._last_kf] = frame.stamp
+            record["keyframe_ms"] = round((time.perf_counter() - t1) * 1e3, 3)
+        self._stamps.append(frame.stamp)
+        self._odom_poses.append(result.pose)
+        self._frame_keyframe.append(self._last_kf)
+        self._per_frame.append(record)
+        keyframe_pose = self.graph.optimize()[self._last_kf]
+        pose = keyframe_pose @ invert(self.keyframe_odometry[self._last_kf]) @ result.pose
+        return StepResult(
+            pose=pose, odometry=result, keyframe_id=new_keyframe, loop_closed=len(self._accepted) > loops_before
+        )
+
+    def keyframe_poses(self) -> dict[int, NDArray[np.float64]]:
+        """Current (optimised) pose of every keyframe."""
+        return dict(self.graph.optimize())
+
+    def result(self) -> SlamResult:
+        """Final optimisation and the trajectory of every frame processed so far."""
+        optimized = self.graph.optimize_full() if self._accepted else self.graph.optimize()
+        kf_odom = self.keyframe_odometry
+        poses = [
+            optimized[k] @ invert(kf_odom[k]) @ p for k, p in zip(self._frame_keyframe, self._odom_poses, strict=True)
+        ]
+        kf_ids = sorted(kf_odom)
+        stats = {
+            "frames": self._per_frame,
+            "loops_accepted": self._accepted,
+            "loops_rejected": self._rejected,
+            "keyframes": len(kf_ids),
+        }
+        return SlamResult(
+            trajectory=Trajectory.from_lists(self._stamps, poses),
+            keyframes=Trajectory.from_lists([self.keyframe_stamps[k] for k in kf_ids], [optimized[k] for k in kf_ids]),
+            odometry=Trajectory.from_lists(self._stamps, self._odom_poses),
+            loops_accepted=list(self._accepted),
+            loops_rejected=list(self._rejected),
+            frame_ms=[r["odometry_ms"] for r in self._per_frame],
+            stats=stats,
+        )
 
     def run(self, max_frames: int | None = None, progress: Callable[[int], None] | None = None) -> SlamResult:
-        stamps: list[float] = []
-        odom_poses: list[NDArray[np.float64]] = []
-        frame_keyframe: list[int] = []
-        kf_odom: dict[int, NDArray[np.float64]] = {}
-        kf_stamp: dict[int, float] = {}
-        accepted: list[tuple[int, int]] = []
-        rejected: list[tuple[int, int]] = []
-        per_frame: list[dict[str, Any]] = []
-        last_kf: int | None = None
+        """Process every frame of the source (up to ``max_frames``) and return the final result."""
+        if self.source is None:
+            raise ValueError("run() needs a source; use step() for live frames")
         for frame in self.source:
             if max_frames is not None and frame.index >= max_frames:
                 break
-            t0 = time.perf_counter()
-            result = self.odometry.track(frame.rgb, frame.depth, frame.stamp, frame.prior)
-            t_odom = (time.perf_counter() - t0) * 1e3
-            record: dict[str, Any] = {
-                "index": frame.index,
-                "stamp": frame.stamp,
-                "odometry_ms": round(t_odom, 3),
-                "inliers": result.inliers,
-                "keyframe": result.is_keyframe,
-                "lost": result.lost,
-            }
-            if result.is_keyframe or last_kf is None:
-                t1 = time.perf_counter()
-                last_kf = self._add_keyframe(frame.stamp, result, last_kf, kf_odom, accepted, rejected, record)
-                kf_stamp[last_kf] = frame.stamp
-                record["keyframe_ms"] = round((time.perf_counter() - t1) * 1e3, 3)
-            stamps.append(frame.stamp)
-            odom_poses.append(result.pose)
-            frame_keyframe.append(last_kf)
-            per_frame.append(record)
+            self.step(frame)
             if progress is not None:
                 progress(1)
-        optimized = self.graph.optimize_full() if accepted else self.graph.optimize()
-        poses = [optimized[k] @ invert(kf_odom[k]) @ p for k, p in zip(frame_keyframe, odom_poses, strict=True)]
-        kf_ids = sorted(kf_odom)
-        stats = {"frames": per_frame, "loops_accepted": accepted, "loops_rejected": rejected, "keyframes": len(kf_ids)}
-        return SlamResult(
-            trajectory=Trajectory.from_lists(stamps, poses),
-            keyframes=Trajectory.from_lists([kf_stamp[k] for k in kf_ids], [optimized[k] for k in kf_ids]),
-            odometry=Trajectory.from_lists(stamps, odom_poses),
-            loops_accepted=accepted,
-            loops_rejected=rejected,
-            frame_ms=[r["odometry_ms"] for r in per_frame],
-            stats=stats,
-        )
+        return self.result()
 
     def _add_keyframe(
         self,
@@ -201,7 +253,7 @@ class SlamPipeline:
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             object_points,
             image_points,
-            self.source.intrinsics.K,
+            self.intrinsics.K,
             None,
             iterationsCount=cfg.pnp_iterations,
             reprojectionError=cfg.pnp_reprojection_error,
