@@ -16,6 +16,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--max-frames", type=int, help="stop after N frames")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_run)
+    node = sub.add_parser("node", help="run the SLAM node of an agent on its camera topics")
+    node.add_argument("--config", help="YAML parameters (SlamNodeConfig)")
+    node.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
+    node.set_defaults(func=_node)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -33,4 +37,24 @@ def _run(args: argparse.Namespace) -> int:
         f"accepted / {summary['loops_rejected']} rejected, odometry median {summary['odometry_ms_median']:.1f} ms"
         f" -> {args.out}"
     )
+    return 0
+
+
+def _node(args: argparse.Namespace) -> int:
+    """The SLAM node until Ctrl-C (namespace from FLEETSLAM_AGENT, or `--ros-args -r __ns:=/name`)."""
+    import contextlib
+
+    from fleetslam.middleware import Context, Node
+    from fleetslam.slam.node import SlamNode, SlamNodeConfig
+
+    with Context() as ctx:
+        node = Node(
+            "slam", context=ctx, parameters=SlamNodeConfig, parameter_file=args.config,
+            parameter_overrides=args.set, ros_args=getattr(args, "ros_args", None),
+        )  # fmt: skip
+        with node:
+            SlamNode(node, node.parameters)
+            print(f"SLAM node {node.fq_name} running (Ctrl-C to stop)", flush=True)
+            with contextlib.suppress(KeyboardInterrupt):
+                node.spin()
     return 0
