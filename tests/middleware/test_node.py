@@ -347,3 +347,14 @@ def test_keep_last_queue_keeps_the_newest_when_the_executor_falls_behind(make_co
     assert sub.queue_overflows == 48
     time.sleep(0.1)
     assert got == ["48", "49"]
+
+
+def test_callbacks_with_defaulted_parameters_get_only_the_message(make_context: Callable[..., Context]) -> None:
+    talker = Node("talker", context=make_context("c3po"))
+    listener = Node("listener", context=make_context())
+    got: list[tuple[str, str]] = []
+    for key in ("first",):
+        listener.create_subscription("std_msgs/msg/String", "/c3po/chatter", lambda m, k=key: got.append((k, m.data)))
+    time.sleep(0.3)
+    talker.create_publisher("std_msgs/msg/String", "chatter").publish(String(data="hi"))
+    assert wait_until(lambda: got == [("first", "hi")])

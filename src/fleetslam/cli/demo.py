@@ -16,6 +16,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=None, help="results folder (default: results/demo-<time>)")
     parser.add_argument("--port", type=int, default=8080, help="console port")
     parser.add_argument("--router-port", type=int, default=7447, help="router port on 127.0.0.1")
+    parser.add_argument(
+        "--mode", choices=["sim", "synthetic"], default="sim",
+        help="sim: simulated robots with SLAM and maps; synthetic: agents exchanging graphs only",
+    )  # fmt: skip
+    parser.add_argument("--resolution", default="320x240", help="simulated camera resolution WxH")
     parser.set_defaults(func=run)
 
 
@@ -24,7 +29,9 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("results") / time.strftime("demo-%Y%m%d-%H%M%S")
     result = run_demo(
         robots=robots, duration_s=args.duration, out_dir=out, port=args.port, router_port=args.router_port,
-        headless=args.headless,
+        headless=args.headless, mode=args.mode, resolution=args.resolution,
     )  # fmt: skip
-    print(f"results in {result.out_dir}: report.md, statistics.json, bandwidth.png")
+    for robot, value in sorted(result.ate.items()):
+        print(f"ATE {robot}: {value:.3f} m (SLAM vs ground truth, aligned)")
+    print(f"results in {result.out_dir}: report.md, report.html, statistics.json, maps/, trajectories/, plots")
     return 0

@@ -1,16 +1,19 @@
 """`fleetslam demo`: the fleet on one machine, with the operator console and live network statistics.
 
-Today the demo runs the distributed-SLAM framework's own experiment: a router (the discovery service), agents
-c3po and r2d2 in their own processes and namespaces, each publishing its keyframe graph and subscribing to the
-other's, the console in the browser and `/statistics` from every subscription. The agents are synthetic
-(``fleetslam.launch.example_agent``) until the simulated plant, SLAM and mapping nodes replace them.
-At the end it writes ``DIR/statistics.json``, ``DIR/report.md`` and ``DIR/bandwidth.png``.
+``mode="sim"`` (the default): a router, the simulated plant with the robots driving autopilot routes, per robot a
+SLAM node and a mapping node (its own processes, its own namespace), a fleet map node fusing the robots' maps
+from their known start poses, and the console. ``mode="synthetic"``: agents that only exchange keyframe graphs
+(``fleetslam.launch.example_agent``), the seed's network experiment, light enough for any machine.
+At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
+truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``report.md``/``report.html``
+and plots.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -18,9 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
 from fleetslam.launch.description import ProcessSpec, RestartPolicy
 from fleetslam.launch.supervisor import Supervisor
 from fleetslam.middleware import Context, Node, QoSProfile, Router
+from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
 from fleetslam.station.server import StationServer
 
@@ -38,6 +44,10 @@ class DemoResult:
     duration_s: float
     rows: list[StatsRow]
     history: list[dict[str, Any]] = field(default_factory=list)
+    ate: dict[str, float] = field(default_factory=dict)
+    """ATE RMSE (m) per robot, SLAM against ground truth."""
+    plots: list[Path | None] = field(default_factory=list)
+    """Extra figures for the report."""
 
     def per_agent(self) -> dict[str, dict[str, float]]:
         totals: dict[str, dict[str, float]] = {}
@@ -79,6 +89,115 @@ def _agent_processes(robots: list[str], router: str) -> list[ProcessSpec]:
     return processes
 
 
+def _fleetslam(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fleetslam.cli.main", *args]
+
+
+def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, Any]]:
+    """Each robot's camera pose at start in the world, [x, y, z, roll, pitch, yaw] (where its SLAM map sits),
+    and its camera extrinsics T_base_link_optical (to compare SLAM camera poses with base ground truth)."""
+    from scipy.spatial.transform import Rotation
+
+    from fleetslam.sim.config import SimConfig
+    from fleetslam.sim.plant import Plant
+
+    config = SimConfig()
+    placements = [p for p in config.robots if p.name in robots]
+    poses = {}
+    extrinsics = {}
+    with Plant(config, placements, controllers=False) as plant:
+        for name in plant.robot_names:
+            pose = plant.camera_pose(name)
+            rpy = Rotation.from_matrix(pose[:3, :3]).as_euler("xyz")
+            poses[name] = [*pose[:3, 3].tolist(), *rpy.tolist()]
+            extrinsics[name] = plant.camera_extrinsics(name)
+    return poses, extrinsics
+
+
+def _sim_processes(
+    robots: list[str], router: str, out_dir: Path, resolution: str
+) -> tuple[list[ProcessSpec], dict[str, Any]]:
+    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    processes = []
+    for robot in robots:
+        agent_env = {**env, "FLEETSLAM_AGENT": robot}
+        processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost", argv=_fleetslam("slam", "node"),
+                                     environment=agent_env, restart=RestartPolicy()))  # fmt: skip
+        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
+                                     environment=agent_env, restart=RestartPolicy()))  # fmt: skip
+    fleet_config = out_dir / "fleet_map.yaml"
+    import yaml
+
+    poses, extrinsics = start_poses(robots)
+    fleet_config.write_text(yaml.safe_dump({"start_poses": poses, "agents": robots}))
+    processes.append(ProcessSpec(label="fleet_map", host="localhost",
+                                 argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
+                                 environment=env, restart=RestartPolicy()))  # fmt: skip
+    processes.append(ProcessSpec(label="sim", host="localhost",
+                                 argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz", "5",
+                                                 "--resolution", resolution, "--autopilot", "loop"),
+                                 environment={**env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+                                 restart=RestartPolicy()))  # fmt: skip
+    return processes, extrinsics
+
+
+class _Monitor:
+    """The demo's own node: statistics, trajectories and the recording of the key topics."""
+
+    def __init__(self, ctx: Context, robots: list[str], recording: Path | None) -> None:
+        self.node = Node("demo_monitor", context=ctx, statistics_period_s=0)
+        self.table = StatsTable(stale_s=1e9)
+        self.history: list[dict[str, Any]] = []
+        self.trajectories: dict[str, list[tuple[float, Any]]] = {
+            f"{r}/{k}": [] for r in robots for k in ("slam", "truth")
+        }
+        self.lock = threading.Lock()
+        self.writer = BagWriter(recording) if recording is not None else None
+        self.node.create_subscription(
+            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000)
+        )
+        for robot in robots:
+            for kind, topic in (("slam", "slam/odom"), ("truth", "ground_truth/odom")):
+                key = f"{robot}/{kind}"
+                self.node.create_subscription(
+                    "nav_msgs/msg/Odometry", f"/{robot}/{topic}",
+                    lambda msg, k=key: self._on_odom(k, msg), QoSProfile(depth=100),  # type: ignore[misc]
+                )  # fmt: skip
+            if self.writer is not None:
+                for type_name, topic in (("nav_msgs/msg/Odometry", "slam/odom"),
+                                         ("nav_msgs/msg/Odometry", "ground_truth/odom"),
+                                         ("nav_msgs/msg/Odometry", "odom"),
+                                         ("fleetslam_msgs/msg/KeyframeGraph", "graph")):  # fmt: skip
+                    self.node.create_subscription(type_name, f"/{robot}/{topic}", self._record, QoSProfile(depth=100),
+                                                  raw=True)  # fmt: skip
+
+    def _on_statistics(self, msg: Any) -> None:
+        with self.lock:
+            row = self.table.update(msg)
+            self.history.append({"t": time.time(), "agent": row.agent, "topic": row.topic,
+                                 "subscriber": row.node_sub, "bandwidth_bps": row.bandwidth_bps})  # fmt: skip
+        if self.writer is not None:
+            from fleetslam.middleware.typesys import serialize
+
+            self.writer.write("/statistics", "fleetslam_msgs/msg/TopicStatistics", time.time_ns(),
+                              serialize(msg, "fleetslam_msgs/msg/TopicStatistics"))  # fmt: skip
+
+    def _record(self, data: bytes, info: Any) -> None:
+        if self.writer is not None:
+            self.writer.write(info.topic, info.type_name, info.received_timestamp_ns, data)
+
+    def _on_odom(self, key: str, msg: Any) -> None:
+        from fleetslam.middleware.typesys import ns_from_stamp
+
+        with self.lock:
+            self.trajectories[key].append((ns_from_stamp(msg.header.stamp) / 1e9, msg.pose.pose))
+
+    def close(self) -> None:
+        self.node.destroy()
+        if self.writer is not None:
+            self.writer.close()
+
+
 def run_demo(
     *,
     robots: list[str],
@@ -87,28 +206,23 @@ def run_demo(
     port: int = 8080,
     router_port: int = 7447,
     headless: bool = False,
+    mode: str = "sim",
+    resolution: str = "320x240",
     output: TextIO = sys.stdout,
 ) -> DemoResult:
     """Run the demo until ``duration_s`` passes (None: until Ctrl-C), then write the results to ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
-    table = StatsTable(stale_s=1e9)
-    history: list[dict[str, Any]] = []
-    lock = threading.Lock()
+    if mode == "sim":
+        print("[demo] preparing the simulated plant", file=output, flush=True)
+        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution)
+    else:
+        processes, extrinsics = _agent_processes(robots, endpoint), {}
     with Router([endpoint]):
-        supervisor = Supervisor(_agent_processes(robots, endpoint), output=open(out_dir / "agents.log", "w"))  # noqa: SIM115
+        log_file = open(out_dir / "processes.log", "w")  # noqa: SIM115
+        supervisor = Supervisor(processes, output=log_file)
         with Context(router=endpoint, listen="tcp/127.0.0.1:0", namespace="/") as ctx:
-            monitor = Node("demo_monitor", context=ctx, statistics_period_s=0)
-
-            def on_statistics(msg: Any) -> None:
-                with lock:
-                    row = table.update(msg)
-                    history.append({"t": time.time(), "agent": row.agent, "topic": row.topic,
-                                    "subscriber": row.node_sub, "bandwidth_bps": row.bandwidth_bps})  # fmt: skip
-
-            monitor.create_subscription(
-                "fleetslam_msgs/msg/TopicStatistics", "/statistics", on_statistics, QoSProfile(depth=1000)
-            )
+            monitor = _Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
             station = None
             if not headless:
                 station = StationServer(ctx, port=port)
@@ -121,27 +235,78 @@ def run_demo(
                 while duration_s is None or time.monotonic() - start < duration_s:
                     time.sleep(1.0)
                     elapsed = time.monotonic() - start
-                    with lock:
-                        totals = table.per_agent()
+                    with monitor.lock:
+                        totals = monitor.table.per_agent()
+                        frames = {k: len(v) for k, v in monitor.trajectories.items() if k.endswith("/slam")}
                     summary = ", ".join(
                         f"{agent}: {t['bandwidth_bps'] / 1e3:.1f} kB/s, {int(t['dropped'])} dropped"
                         for agent, t in sorted(totals.items())
                     )
+                    poses = ", ".join(f"{k.split('/')[0]} {n} poses" for k, n in sorted(frames.items()))
                     total = f"/{duration_s:.0f}" if duration_s else ""
-                    print(f"[demo {elapsed:5.0f}{total} s] {summary or 'waiting for statistics'}", file=output,
-                          flush=True)  # fmt: skip
+                    print(f"[demo {elapsed:5.0f}{total} s] {summary or 'waiting for statistics'} {poses}",
+                          file=output, flush=True)  # fmt: skip
             except KeyboardInterrupt:
                 print("[demo] stopping", file=output, flush=True)
+            if mode == "sim":
+                _save_maps(monitor.node, robots, out_dir / "maps", output)
             supervisor.stop()
             supervisor_thread.join(10)
+            log_file.close()
             if station is not None:
                 station.stop()
+            monitor.close()
             elapsed = time.monotonic() - start
-    with lock:
-        rows = table.rows()
-    result = DemoResult(out_dir, elapsed, rows, history)
+    with monitor.lock:
+        rows = monitor.table.rows()
+    result = DemoResult(out_dir, elapsed, rows, monitor.history)
+    if mode == "sim":
+        result.ate = _write_trajectories(monitor.trajectories, robots, out_dir, extrinsics)
+        result.plots.append(_plot_trajectories(robots, out_dir))
     write_results(result)
     return result
+
+
+def _save_maps(node: Node, robots: list[str], maps_dir: Path, output: TextIO) -> None:
+    from fleetslam.middleware.typesys import get_type
+
+    request = get_type("fleetslam_msgs/srv/SaveMap_Request")
+    for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:
+        client = node.create_client("fleetslam_msgs/srv/SaveMap", service)
+        try:
+            response = client.call(request(path=str(maps_dir / f"{name}.bt")), timeout=30.0)
+            print(f"[demo] map {name}: {response.message} -> {response.path}", file=output, flush=True)
+        except Exception as err:  # a node that never got data answers late or not at all
+            print(f"[demo] map {name} not saved: {err}", file=output, flush=True)
+
+
+def _write_trajectories(
+    trajectories: dict[str, list[tuple[float, Any]]], robots: list[str], out_dir: Path, extrinsics: dict[str, Any]
+) -> dict[str, float]:
+    """TUM files of every robot's SLAM and ground-truth camera trajectory, and the ATE (m) of each."""
+    from fleetslam.geometry import pose_from_quat
+    from fleetslam.trajectory import Trajectory, write_tum
+
+    ate: dict[str, float] = {}
+    for robot in robots:
+        tracks = {}
+        for kind, folder in (("slam", "trajectories"), ("truth", "ground_truth")):
+            samples = trajectories.get(f"{robot}/{kind}", [])
+            poses = [pose_from_quat([p.position.x, p.position.y, p.position.z],
+                                    [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w])
+                     for _, p in samples]  # fmt: skip
+            if kind == "truth" and robot in extrinsics:  # base_link ground truth → camera optical frame
+                poses = [p @ extrinsics[robot] for p in poses]
+            tracks[kind] = Trajectory.from_lists([t for t, _ in samples], poses)
+            write_tum(out_dir / folder / f"{robot}.txt", tracks[kind])
+        if len(tracks["slam"]) >= 3 and len(tracks["truth"]) >= 3:
+            try:
+                from fleetslam.eval import ape
+
+                ate[robot] = float(ape(tracks["truth"], tracks["slam"], align=True, max_diff=0.1).rmse)
+            except Exception as err:
+                log.warning("ATE of %s: %s", robot, err)
+    return ate
 
 
 def write_results(result: DemoResult) -> None:
@@ -161,13 +326,100 @@ def write_results(result: DemoResult) -> None:
             f"| {r.agent} | {r.topic} | {r.node_pub} → {r.node_sub} | {r.bandwidth_bps / 1e3:.1f} | {r.rate_hz:.1f} "
             f"| {r.delivered} | {r.dropped} | {r.age_mean_ms:.2f} ± {r.age_std_ms:.2f} |"
         )
+    if result.ate:
+        lines += ["", "## Trajectory error (SLAM vs ground truth, SE(3)-aligned, translation RMSE)", "",
+                  "| robot | ATE RMSE (m) |", "|---|---:|"]  # fmt: skip
+        lines += [f"| {robot} | {value:.3f} |" for robot, value in sorted(result.ate.items())]
     lines += ["", "## Per agent", "", "| agent | kB/s | delivered | dropped |", "|---|---:|---:|---:|"]
     for agent, t in sorted(result.per_agent().items()):
         lines.append(f"| {agent} | {t['bandwidth_bps'] / 1e3:.1f} | {int(t['delivered'])} | {int(t['dropped'])} |")
-    plot = _plot_bandwidth(result)
-    if plot is not None:
-        lines += ["", f"![bandwidth over time]({plot.name})"]
+    for plot in [*result.plots, _plot_bandwidth(result)]:
+        if plot is not None:
+            lines += ["", f"![{plot.stem}]({plot.name})"]
     (out / "report.md").write_text("\n".join(lines) + "\n")
+    (out / "report.html").write_text(_markdown_to_html(lines))
+
+
+def _markdown_to_html(lines: list[str]) -> str:
+    """The report's markdown (headings, tables, images, text) as a standalone HTML page."""
+    import html
+
+    body: list[str] = []
+    in_table = False
+    for line in lines:
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if all(set(c) <= set("-:") for c in cells):
+                continue
+            if not in_table:
+                body.append("<table>")
+                in_table = True
+                body.append("<tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in cells) + "</tr>")
+            else:
+                body.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+            continue
+        if in_table:
+            body.append("</table>")
+            in_table = False
+        if line.startswith("## "):
+            body.append(f"<h2>{html.escape(line[3:])}</h2>")
+        elif line.startswith("# "):
+            body.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif line.startswith("!["):
+            alt, src = line[2:].split("](", 1)
+            body.append(f'<img alt="{html.escape(alt)}" src="{html.escape(src.rstrip(")"))}">')
+        elif line:
+            body.append(f"<p>{html.escape(line)}</p>")
+    if in_table:
+        body.append("</table>")
+    style = (
+        "body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:3px 8px}"
+    )
+    return f"<!doctype html><meta charset=utf-8><title>fleetslam demo</title><style>{style}</style>" + "\n".join(body)
+
+
+def _plot_trajectories(robots: list[str], out_dir: Path) -> Path | None:
+    """Ground truth and SLAM paths (SLAM placed by the robots' start poses) over the fleet map's occupied cells."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import yaml
+
+        from fleetslam.geometry import pose_from_xyz_rpy
+        from fleetslam.mapping.octree import OccupancyOctree
+        from fleetslam.trajectory import read_tum
+    except ImportError:
+        return None
+    fig, ax = plt.subplots(figsize=(9, 6.5), dpi=110)
+    fleet_map = out_dir / "maps" / "fleet.bt"
+    if fleet_map.is_file():
+        centres, _ = OccupancyOctree.read(fleet_map).occupied_centers()
+        band = centres[(centres[:, 2] > 0.1) & (centres[:, 2] < 1.5)]
+        ax.scatter(band[:, 0], band[:, 1], s=0.3, c="0.6", label="fleet map (occupied, 0.1–1.5 m)")
+    starts = yaml.safe_load((out_dir / "fleet_map.yaml").read_text()).get("start_poses", {})
+    for robot in robots:
+        truth, slam = out_dir / "ground_truth" / f"{robot}.txt", out_dir / "trajectories" / f"{robot}.txt"
+        if not truth.is_file() or not slam.is_file():
+            continue
+        gt = read_tum(truth).positions
+        start = pose_from_xyz_rpy(*starts[robot]) if robot in starts else np.eye(4)
+        est = read_tum(slam).poses
+        placed = (start @ est)[:, :3, 3] if len(est) else np.zeros((0, 3))
+        (line,) = ax.plot(gt[:, 0], gt[:, 1], "--", linewidth=1.2, label=f"{robot} ground truth")
+        ax.plot(placed[:, 0], placed[:, 1], "-", color=line.get_color(), linewidth=1.5, label=f"{robot} SLAM")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("Trajectories over the fleet map")
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    path = out_dir / "trajectories.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path
 
 
 def _plot_bandwidth(result: DemoResult) -> Path | None:

@@ -250,6 +250,11 @@ class Publisher(_Entity):
 
 
 def _accepts_info(callback: Callable[..., Any]) -> bool:
+    """Whether a callback wants ``(msg, info)``: a second positional parameter without a default, or ``*args``.
+
+    Parameters with defaults do not count, so closures binding loop variables (``lambda m, k=key: ...``) get
+    only the message.
+    """
     try:
         params = [
             p
@@ -258,7 +263,8 @@ def _accepts_info(callback: Callable[..., Any]) -> bool:
         ]
     except (TypeError, ValueError):
         return False
-    return len(params) >= 2 or any(p.kind is p.VAR_POSITIONAL for p in params)
+    required = [p for p in params if p.kind is not p.VAR_POSITIONAL and p.default is p.empty]
+    return len(required) >= 2 or any(p.kind is p.VAR_POSITIONAL for p in params)
 
 
 class Subscription(_Entity):
