@@ -326,6 +326,20 @@ def write_results(result: DemoResult) -> None:
             f"| {r.agent} | {r.topic} | {r.node_pub} → {r.node_sub} | {r.bandwidth_bps / 1e3:.1f} | {r.rate_hz:.1f} "
             f"| {r.delivered} | {r.dropped} | {r.age_mean_ms:.2f} ± {r.age_std_ms:.2f} |"
         )
+    maps = sorted((out / "maps").glob("*.bt")) if (out / "maps").is_dir() else []
+    if maps:
+        from fleetslam.mapping.octree import OccupancyOctree
+
+        lines += ["", "## Maps", "", "| map | nodes | leaves | occupied leaves | free leaves | extent (m) |",
+                  "|---|---:|---:|---:|---:|---|"]  # fmt: skip
+        for path in maps:
+            tree = OccupancyOctree.read(path)
+            occupied, _ = tree.occupied_centers()
+            free, _ = tree.free_centers()
+            lo, hi = tree.metric_bounds()
+            extent = " × ".join(f"{v:.1f}" for v in (hi - lo))
+            lines.append(f"| {path.name} | {tree.num_nodes()} | {tree.num_leaf_nodes()} | {len(occupied)} | "
+                         f"{len(free)} | {extent} |")  # fmt: skip
     if result.ate:
         lines += ["", "## Trajectory error (SLAM vs ground truth, SE(3)-aligned, translation RMSE)", "",
                   "| robot | ATE RMSE (m) |", "|---|---:|"]  # fmt: skip
