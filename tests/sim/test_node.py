@@ -71,3 +71,25 @@ def test_sim_node_publishes_sensors_and_obeys_cmd_vel(make_context: Callable[...
     static = received["tf_static"][-1].transforms[0]
     assert (static.header.frame_id, static.child_frame_id) == ("base_link", "camera_optical_frame")
     assert static.transform.translation.z == pytest.approx(0.5, abs=0.01)
+
+
+def test_operator_takes_over_from_the_autopilot(make_context: Callable[..., Context]) -> None:
+    """With an autopilot route the robot drives itself; an operator's cmd_vel (here: hold still) wins."""
+    truth: list[Any] = []
+    with (
+        Plant(SimConfig(), [RobotPlacement(name="c3po", x=-12.0, y=-7.5, yaw=0.0)], controllers=False) as plant,
+        Node("operator", context=make_context()) as operator,
+    ):
+        sim = SimNode(make_context(), plant, camera_hz=1.0, width=80, height=60, rate=1.0, autopilot="loop")
+        operator.create_subscription("nav_msgs/msg/Odometry", "/c3po/ground_truth/odom", truth.append)
+        cmd = operator.create_publisher("geometry_msgs/msg/Twist", "/c3po/cmd_vel")
+        assert wait_until(lambda: cmd.matched_subscriptions > 0, 5.0)
+        twist, vec3 = get_type("geometry_msgs/msg/Twist"), get_type("geometry_msgs/msg/Vector3")
+        thread = threading.Thread(target=sim.run, kwargs={"duration": 3.0})
+        thread.start()
+        while thread.is_alive():  # the operator holds the robot still the whole time
+            cmd.publish(twist(linear=vec3(x=0.0, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=0.0)))
+            thread.join(0.05)
+        sim.close()
+    start, end = truth[0].pose.pose.position, truth[-1].pose.pose.position
+    assert abs(end.x - start.x) < 0.05 and abs(end.y - start.y) < 0.05  # the autopilot alone drives ~1 m

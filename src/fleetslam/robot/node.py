@@ -90,6 +90,8 @@ class BaseControllerNode:
             if self.config.publish_tf
             else None
         )
+        self.last_external_command: float | None = None
+        """Clock time of the last accepted `cmd_vel` (an operator or another node driving the robot)."""
         node.create_subscription("geometry_msgs/msg/Twist", "cmd_vel", self._on_twist, QoSProfile(depth=1))
         node.create_subscription(
             "geometry_msgs/msg/TwistStamped", "cmd_vel", self._on_twist_stamped, QoSProfile(depth=1)
@@ -101,14 +103,16 @@ class BaseControllerNode:
     def _on_twist(self, msg: Any) -> None:
         now = self.clock()
         with self._lock:
-            self.controller.command(float(msg.linear.x), float(msg.angular.z), now, now)
+            if self.controller.command(float(msg.linear.x), float(msg.angular.z), now, now):
+                self.last_external_command = now
 
     def _on_twist_stamped(self, msg: Any) -> None:
         now = self.clock()
         stamp_ns = ns_from_stamp(msg.header.stamp)
         stamp = now if stamp_ns == 0 else stamp_ns * 1e-9
         with self._lock:
-            self.controller.command(float(msg.twist.linear.x), float(msg.twist.angular.z), stamp, now)
+            if self.controller.command(float(msg.twist.linear.x), float(msg.twist.angular.z), stamp, now):
+                self.last_external_command = now
 
     def _on_estop(self, request: Any) -> Any:
         engaged = bool(request.data)

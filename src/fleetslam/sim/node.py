@@ -33,6 +33,8 @@ from fleetslam.sim.plant import Plant, RGBDFrame
 log = logging.getLogger(__name__)
 
 OPTICAL_FRAME = "camera_optical_frame"
+#: After an operator's `cmd_vel`, the autopilot leaves the robot to them for this long (s, simulated time).
+OPERATOR_TAKEOVER_S = 3.0
 WORLD_FRAME = "world"
 
 
@@ -203,7 +205,9 @@ class SimNode:
 
     def _control(self, now: float) -> None:
         for io in self.robots.values():
-            if io.autopilot is not None and not io.autopilot.done:
+            external = io.base.last_external_command
+            operator_driving = external is not None and now - external < OPERATOR_TAKEOVER_S
+            if io.autopilot is not None and not io.autopilot.done and not operator_driving:
                 odom = io.base.controller.odometry
                 v, omega, _ = io.autopilot.step((odom.x, odom.y, odom.theta), now)
                 io.base.controller.command(v, omega, now, now)
