@@ -53,3 +53,6 @@ def test_headless_simulated_demo_produces_every_result(tmp_path: Path) -> None:
     report = (run / "report.md").read_text()
     assert "ATE RMSE" in report and "/c3po/camera/rgb/image_raw" in report
     assert "<table>" in (run / "report.html").read_text()
+    links = {(r["topic"], r["node_sub"]) for r in json.loads((run / "statistics.json").read_text())}
+    # Each agent subscribes to the other's graph (the seed's cross-agent subscription).
+    assert ("/c3po/graph", "/r2d2/slam") in links and ("/r2d2/graph", "/c3po/slam") in links

@@ -121,7 +121,9 @@ def _sim_processes(
     processes = []
     for robot in robots:
         agent_env = {**env, "FLEETSLAM_AGENT": robot}
-        processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost", argv=_fleetslam("slam", "node"),
+        peers = "[" + ",".join(r for r in robots if r != robot) + "]"
+        processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
+                                     argv=_fleetslam("slam", "node", "--set", f"peers={peers}"),
                                      environment=agent_env, restart=RestartPolicy()))  # fmt: skip
         processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
                                      environment=agent_env, restart=RestartPolicy()))  # fmt: skip

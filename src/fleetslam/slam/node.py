@@ -44,6 +44,9 @@ class SlamNodeConfig(ConfigModel):
     """Unpaired colour images kept while waiting for their depth."""
     map_db: str = "map.db"
     """Default file of the save_map service."""
+    peers: list[str] = Field(default_factory=list)
+    """Other agents whose `graph` and `keyframes` this agent subscribes to (the distributed framework's
+    cross-agent subscription; kept in ``peer_graphs`` / ``peer_keyframes`` for fusion and inter-agent loops)."""
 
 
 def image_to_array(msg: Any) -> np.ndarray:
@@ -96,6 +99,16 @@ class SlamNode:
         node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images)
         node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images)
         node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
+        self.peer_graphs: dict[str, Any] = {}
+        self.peer_keyframes: dict[str, int] = {}
+        for peer in self.config.peers:
+            node.create_subscription(
+                "fleetslam_msgs/msg/KeyframeGraph", f"/{peer}/graph", self.on_peer_graph,
+                QoSProfile(durability="transient_local", depth=1),
+            )  # fmt: skip
+            node.create_subscription(
+                "fleetslam_msgs/msg/Keyframe", f"/{peer}/keyframes", self.on_peer_keyframe, QoSProfile(depth=50)
+            )
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
@@ -130,6 +143,12 @@ class SlamNode:
         for queue in (self._pending, self._depth):
             while len(queue) > self.config.max_pending:
                 del queue[min(queue)]
+
+    def on_peer_graph(self, msg: Any) -> None:
+        self.peer_graphs[msg.agent] = msg
+
+    def on_peer_keyframe(self, msg: Any) -> None:
+        self.peer_keyframes[msg.agent] = self.peer_keyframes.get(msg.agent, 0) + 1
 
     # -- work ---------------------------------------------------------------------------------------------------
     def process(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> StepResult | None:
