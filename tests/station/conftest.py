@@ -3,10 +3,13 @@ a real `cmd_vel` subscriber and a real `e_stop` service."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -14,6 +17,7 @@ import pytest
 
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, header
+from fleetslam.station.server import STATIC_DIR
 
 
 def pointcloud2(points: np.ndarray) -> Any:
@@ -92,3 +96,40 @@ def test_robot(make_context: Callable[..., Context]) -> Iterator[RobotUnderTest]
     yield robot
     stop.set()
     thread.join()
+
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run", "--disable-dev-shm-usage", "--use-gl=swiftshader",
+    "--enable-unsafe-swiftshader",
+]  # fmt: skip
+
+
+@pytest.fixture
+def browser_page(tmp_path: Path):  # type: ignore[no-untyped-def]
+    playwright_api = pytest.importorskip("playwright.sync_api")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Debian's chromium is not installed (scripts/setup installs it as root)")
+    if not (STATIC_DIR / "vendor" / "three.module.js").is_file():
+        pytest.skip("front-end dependencies missing: run scripts/setup-frontend")
+    with playwright_api.sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS,
+            viewport={"width": 1400, "height": 820},
+        )  # fmt: skip
+        page = context.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        yield page, errors
+        context.close()
+
+
+def save_screenshot(page, tmp_path: Path, name: str) -> Path:  # type: ignore[no-untyped-def]
+    path = tmp_path / name
+    page.screenshot(path=str(path))
+    artifacts = os.environ.get("FLEETSLAM_ARTIFACTS")
+    if artifacts:
+        Path(artifacts).mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, Path(artifacts) / name)
+    return path

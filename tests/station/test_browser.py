@@ -2,55 +2,15 @@
 
 from __future__ import annotations
 
-import os
-import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-import pytest
-
 from fleetslam.middleware import Context
-from fleetslam.station.server import STATIC_DIR, StationServer
+from fleetslam.station.server import StationServer
 
 from ..support import wait_until
-from .conftest import RobotUnderTest
-
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-    "--disable-sync", "--no-first-run", "--disable-dev-shm-usage", "--use-gl=swiftshader",
-    "--enable-unsafe-swiftshader",
-]  # fmt: skip
-
-
-@pytest.fixture
-def browser_page(tmp_path: Path):  # type: ignore[no-untyped-def]
-    playwright_api = pytest.importorskip("playwright.sync_api")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed (scripts/setup installs it as root)")
-    if not (STATIC_DIR / "vendor" / "three.module.js").is_file():
-        pytest.skip("front-end dependencies missing: run scripts/setup-frontend")
-    with playwright_api.sync_playwright() as p:
-        context = p.chromium.launch_persistent_context(
-            str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS,
-            viewport={"width": 1400, "height": 820},
-        )  # fmt: skip
-        page = context.new_page()
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        yield page, errors
-        context.close()
-
-
-def _save_screenshot(page, tmp_path: Path, name: str) -> Path:  # type: ignore[no-untyped-def]
-    path = tmp_path / name
-    page.screenshot(path=str(path))
-    artifacts = os.environ.get("FLEETSLAM_ARTIFACTS")
-    if artifacts:
-        Path(artifacts).mkdir(parents=True, exist_ok=True)
-        shutil.copy(path, Path(artifacts) / name)
-    return path
+from .conftest import RobotUnderTest, save_screenshot
 
 
 def test_console_in_chromium(
@@ -71,7 +31,7 @@ def test_console_in_chromium(
         page.keyboard.down("w")
         assert wait_until(lambda: any(v > 0 for _, v, _ in test_robot.commands), 5.0)
         time.sleep(0.5)
-        _save_screenshot(page, tmp_path, "console-driving.png")
+        save_screenshot(page, tmp_path, "console-driving.png")
         page.keyboard.up("w")
         page.keyboard.up("Space")
         released = time.monotonic()
