@@ -36,3 +36,26 @@ def to_yaml(data: Any) -> str:
 def settle(seconds: float = 0.3) -> None:
     """Let discovery settle before publishing from a fresh session."""
     time.sleep(seconds)
+
+
+def run_adapter_node(
+    args: Any,
+    name: str,
+    parameters: type[Any],
+    adapter: Callable[[Node, Any], Any],
+    *,
+    namespace: str | None = None,
+) -> int:
+    """Run one node until Ctrl-C: a context from the environment, the node with its typed parameters from
+    ``--config``/``--set``/``--ros-args``, and the adapter object that does the work (mapping, SLAM, fleet map)."""
+    with Context() as ctx:
+        node = Node(
+            name, context=ctx, namespace=namespace, parameters=parameters, parameter_file=args.config,
+            parameter_overrides=args.set, ros_args=getattr(args, "ros_args", None),
+        )  # fmt: skip
+        with node:
+            adapter(node, node.parameters)
+            print(f"{name} node {node.fq_name} running (Ctrl-C to stop)", flush=True)
+            with contextlib.suppress(KeyboardInterrupt):
+                node.spin()
+    return 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 from pathlib import Path
 
 
@@ -16,17 +15,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run_node(args: argparse.Namespace) -> int:
+    from fleetslam.cli.common import run_adapter_node
     from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
-    from fleetslam.middleware import Context, Node
 
-    with Context() as ctx:
-        node = Node(
-            "fleet_map", context=ctx, namespace="/", parameters=FleetMapConfig, parameter_file=args.config,
-            parameter_overrides=args.set, ros_args=getattr(args, "ros_args", None),
-        )  # fmt: skip
-        with node:
-            FleetMapNode(node, node.parameters)
-            print("fleet map node running (Ctrl-C to stop)", flush=True)
-            with contextlib.suppress(KeyboardInterrupt):
-                node.spin()
-    return 0
+    return run_adapter_node(args, "fleet_map", FleetMapConfig, FleetMapNode, namespace="/")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 from pathlib import Path
@@ -194,17 +193,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
 def run_node(args: argparse.Namespace) -> int:
     """The mapping node until Ctrl-C (namespace from FLEETSLAM_AGENT, or `--ros-args -r __ns:=/name`)."""
+    from fleetslam.cli.common import run_adapter_node
     from fleetslam.mapping.node import MappingNode, MappingNodeConfig
-    from fleetslam.middleware import Context, Node
 
-    with Context() as ctx:
-        node = Node(
-            "mapping", context=ctx, parameters=MappingNodeConfig, parameter_file=args.config,
-            parameter_overrides=args.set, ros_args=getattr(args, "ros_args", None),
-        )  # fmt: skip
-        with node:
-            MappingNode(node, node.parameters)
-            print(f"mapping node {node.fq_name} running (Ctrl-C to stop)", flush=True)
-            with contextlib.suppress(KeyboardInterrupt):
-                node.spin()
-    return 0
+    return run_adapter_node(args, "mapping", MappingNodeConfig, MappingNode)

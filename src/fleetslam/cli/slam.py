@@ -42,19 +42,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _node(args: argparse.Namespace) -> int:
     """The SLAM node until Ctrl-C (namespace from FLEETSLAM_AGENT, or `--ros-args -r __ns:=/name`)."""
-    import contextlib
-
-    from fleetslam.middleware import Context, Node
+    from fleetslam.cli.common import run_adapter_node
     from fleetslam.slam.node import SlamNode, SlamNodeConfig
 
-    with Context() as ctx:
-        node = Node(
-            "slam", context=ctx, parameters=SlamNodeConfig, parameter_file=args.config,
-            parameter_overrides=args.set, ros_args=getattr(args, "ros_args", None),
-        )  # fmt: skip
-        with node:
-            SlamNode(node, node.parameters)
-            print(f"SLAM node {node.fq_name} running (Ctrl-C to stop)", flush=True)
-            with contextlib.suppress(KeyboardInterrupt):
-                node.spin()
-    return 0
+    return run_adapter_node(args, "slam", SlamNodeConfig, SlamNode)

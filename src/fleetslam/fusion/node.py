@@ -18,9 +18,9 @@ from pydantic import Field
 from fleetslam.config import ConfigModel
 from fleetslam.fusion.fleet_map import FleetMap
 from fleetslam.geometry import pose_from_xyz_rpy
+from fleetslam.mapping.node import pointcloud2_msg
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
 from fleetslam.mapping.octree import OccupancyOctree
-from fleetslam.mapping.products import pointcloud2_fields_and_data
 from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, header, message_from_dict
 
@@ -106,15 +106,7 @@ class FleetMapNode:
         fused = self.fleet.fused()
         stamp = header(self.config.frame_id, self.node.now_ns())
         centres, _ = fused.occupied_centers()
-        fields, step, data = pointcloud2_fields_and_data(centres)
-        field_type = get_type("sensor_msgs/msg/PointField")
-        cloud = get_type("sensor_msgs/msg/PointCloud2")(
-            header=stamp, height=1, width=len(centres),
-            fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
-            is_bigendian=False, point_step=step, row_step=step * len(centres),
-            data=np.frombuffer(data, np.uint8), is_dense=True,
-        )  # fmt: skip
-        self.cloud_pub.publish(cloud)
+        self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
         octomap = message_from_dict(
             "octomap_msgs/msg/Octomap", octomap_message_fields(fused.resolution, fused.leaves())
         )

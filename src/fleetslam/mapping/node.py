@@ -64,6 +64,18 @@ def decode_depth(msg: Any) -> np.ndarray | None:
     return depth
 
 
+def pointcloud2_msg(points: np.ndarray, stamp_header: Any) -> Any:
+    """sensor_msgs/msg/PointCloud2 of ``(N, 3)`` points as float32 x, y, z."""
+    fields, step, data = pointcloud2_fields_and_data(points)
+    field_type = get_type("sensor_msgs/msg/PointField")
+    return get_type("sensor_msgs/msg/PointCloud2")(
+        header=stamp_header, height=1, width=len(points),
+        fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
+        is_bigendian=False, point_step=step, row_step=step * len(points),
+        data=np.frombuffer(data, np.uint8), is_dense=True,
+    )  # fmt: skip
+
+
 def pose_matrix(pose: Any) -> np.ndarray:
     p, q = pose.position, pose.orientation
     return pose_from_quat([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
@@ -120,15 +132,7 @@ class MappingNode:
         now = self.node.now_ns()
         stamp = header(self.config.frame_id, now)
         centres, sizes = tree.occupied_centers()
-        fields, step, data = pointcloud2_fields_and_data(centres)
-        field_type = get_type("sensor_msgs/msg/PointField")
-        cloud = get_type("sensor_msgs/msg/PointCloud2")(
-            header=stamp, height=1, width=len(centres),
-            fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
-            is_bigendian=False, point_step=step, row_step=step * len(centres),
-            data=np.frombuffer(data, np.uint8), is_dense=True,
-        )  # fmt: skip
-        self.cloud_pub.publish(cloud)
+        self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
         z_range = (float(centres[:, 2].min()), float(centres[:, 2].max())) if len(centres) else (0.0, 1.0)
         markers = []
         for cubes in cube_list_markers(centres, sizes, tree.resolution, height_range=z_range):
