@@ -173,6 +173,10 @@ class OccupancyOctree:
         deltas = np.concatenate(
             [np.full(len(free), self.miss_log, np.float32), np.full(len(occupied), self.hit_log, np.float32)]
         )
+        self._update_keys(updates, deltas)
+
+    def _update_keys(self, updates: NDArray[np.uint64], deltas: NDArray[np.float32]) -> None:
+        """One log-odds update per finest key (pruned leaves expanded first), recorded in the change set."""
         base = np.zeros(len(updates), np.float32)
         has_base = np.zeros(len(updates), np.bool_)
         if self._coarse:
@@ -414,15 +418,7 @@ class OccupancyOctree:
         # Several source voxels can land in one target voxel after rotation: keep the strongest evidence.
         order = np.argsort(-np.abs(values), kind="stable")
         packed, first = np.unique(packed[order], return_index=True)
-        deltas = values[order][first].astype(np.float32)
-        base = np.zeros(len(packed), np.float32)
-        has_base = np.zeros(len(packed), np.bool_)
-        if self._coarse:
-            keep = self._expand_coarse(packed, deltas, base, has_base)
-            packed, deltas, base, has_base = packed[keep], deltas[keep], base[keep], has_base[keep]
-        touched = self._update_table(packed, deltas, base, has_base)
-        self._changes.append(packed[touched])
-        self._structure = None
+        self._update_keys(packed, values[order][first].astype(np.float32))
 
     def to_max_likelihood(self, in_place: bool = False) -> OccupancyOctree:
         """Leaves set to clamp_max if occupied else clamp_min (OctoMap's toMaxLikelihood), then pruned.
