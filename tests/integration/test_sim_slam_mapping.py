@@ -33,10 +33,16 @@ def test_simulated_robot_is_tracked_and_mapped(router_endpoint: str, make_contex
     graphs: list[Any] = []
     clouds: list[Any] = []
     poses: list[Any] = []
+    map_to_odom: list[Any] = []
     viewer.create_subscription("fleetslam_msgs/msg/Keyframe", "/c3po/keyframes", keyframes.append, QoSProfile(depth=50))
     viewer.create_subscription("fleetslam_msgs/msg/KeyframeGraph", "/c3po/graph", graphs.append, QoSProfile(depth=5))
     viewer.create_subscription("sensor_msgs/msg/PointCloud2", "/c3po/map/occupied", clouds.append, QoSProfile(depth=5))
     viewer.create_subscription("nav_msgs/msg/Odometry", "/c3po/slam/odom", poses.append, QoSProfile(depth=100))
+
+    def on_tf(msg: Any) -> None:
+        map_to_odom.extend(t for t in msg.transforms if t.header.frame_id == "map" and t.child_frame_id == "odom")
+
+    viewer.create_subscription("tf2_msgs/msg/TFMessage", "/c3po/tf", on_tf, QoSProfile(depth=100))
     env = {**os.environ, "FLEETSLAM_ROUTER": router_endpoint, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0",
            "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # fmt: skip
     sim = subprocess.Popen(
@@ -62,6 +68,15 @@ def test_simulated_robot_is_tracked_and_mapped(router_endpoint: str, make_contex
     keyframe = keyframes[-1]
     assert keyframe.agent == "c3po" and keyframe.depth_format == "png16_mm" and len(keyframe.rgb) > 0
     assert keyframe.descriptor_length == 32 and len(keyframe.descriptors) > 0
+    # The bag-of-words vector: one TF-IDF weight per word.
+    assert len(keyframe.word_ids) > 0 and len(keyframe.word_weights) == len(keyframe.word_ids)
+    assert np.all(np.isfinite(keyframe.word_weights)) and np.all(keyframe.word_weights >= 0)
+    # Wheel odometry (odom + tf_static base_link → camera) gave the frames their prior, and the map → odom
+    # correction is on tf: near identity on a short run that starts at the odometry's origin.
+    assert slam_node.base_camera is not None and slam_node.priors_used >= 3
+    assert map_to_odom, "no map → odom transform on /c3po/tf"
+    shift = map_to_odom[-1].transform.translation
+    assert np.linalg.norm([shift.x, shift.y]) < 2.0
     assert graphs and len(graphs[-1].poses) >= 2 and len(graphs[-1].constraints) >= 1
     xyz = np.frombuffer(bytes(clouds[-1].data), np.float32).reshape(-1, 3)
     assert len(xyz) > 50  # occupied voxels of the hall seen by the camera

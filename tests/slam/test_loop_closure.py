@@ -83,7 +83,7 @@ def test_geometric_verification_recovers_known_transform_and_rejects_wrong_match
     query_pose = revisit_pose(place)
     query_obs = observe(rng, place, query_pose)
     # Each landmark is one word: word ids are the indices of the visible landmarks.
-    verifier = GeometricVerifier(CAMERA_MATRIX, min_inliers=20)
+    verifier = GeometricVerifier(CAMERA_MATRIX, min_inliers=20, correspondences="words")
     cand_ids = landmark_ids(place, place.pose)
     query_ids = landmark_ids(place, query_pose)
     candidate = make_signature(1, candidate_obs, cand_ids)
@@ -107,6 +107,36 @@ def test_geometric_verification_recovers_known_transform_and_rejects_wrong_match
     unrelated = make_signature(1, candidate_obs, cand_ids + 10_000)
     none = verifier.verify(query, unrelated)
     assert not none.accepted and none.correspondences == 0
+
+
+def test_descriptor_verification_matches_features_and_rejects_a_repeated_pattern() -> None:
+    rng = np.random.default_rng(15)
+    place = make_place(rng, place_pose(0), n_points=150)
+    query_pose = revisit_pose(place)
+    # No visual words at all: the default verifier re-matches the two locations' descriptors.
+    candidate = make_signature(1, observe(rng, place, place.pose), np.zeros(0, np.int64))
+    query = make_signature(2, observe(rng, place, query_pose), np.zeros(0, np.int64))
+    verifier = GeometricVerifier(CAMERA_MATRIX, min_inliers=20)
+    result = verifier.verify(query, candidate)
+    assert result.accepted, result
+    truth = invert(place.pose) @ query_pose
+    assert result.transform is not None
+    assert translation_distance(result.transform, truth) < 0.02
+    assert rotation_angle(invert(result.transform) @ truth) < np.radians(0.5)
+
+    # The candidate's descriptors match, but its 3D points are another arrangement of the same-looking
+    # features (a repeated pattern seen elsewhere): PnP must not find a pose that explains them.
+    shuffled = Signature(
+        id=1,
+        stamp=0.0,
+        pose=candidate.pose,
+        keypoints=candidate.keypoints,
+        points3d=candidate.points3d[rng.permutation(len(candidate.points3d))],
+        descriptors=candidate.descriptors,
+    )
+    rejected = verifier.verify(query, shuffled)
+    assert not rejected.accepted
+    assert "inliers" in rejected.reason or "disagree" in rejected.reason
 
 
 def test_verification_expresses_the_transform_in_base_frames() -> None:

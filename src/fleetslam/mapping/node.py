@@ -18,12 +18,12 @@ import numpy as np
 from pydantic import Field
 
 from fleetslam.config import ConfigModel
-from fleetslam.geometry import pose_from_quat
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, pointcloud2_fields_and_data, project_occupancy_grid
 from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware.conversions import pose_matrix
 from fleetslam.middleware.typesys import get_type, header, message_from_dict
 
 log = logging.getLogger(__name__)
@@ -74,11 +74,6 @@ def pointcloud2_msg(points: np.ndarray, stamp_header: Any) -> Any:
         is_bigendian=False, point_step=step, row_step=step * len(points),
         data=np.frombuffer(data, np.uint8), is_dense=True,
     )  # fmt: skip
-
-
-def pose_matrix(pose: Any) -> np.ndarray:
-    p, q = pose.position, pose.orientation
-    return pose_from_quat([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
 
 
 class MappingNode:

@@ -52,13 +52,14 @@ def _survey(length: float, width: float, lanes: int) -> tuple[Point, ...]:
     return tuple(points)
 
 
+_LOOP = ((0.0, 0.0), (4.0, 0.0), (5.0, 1.0), (5.0, 3.0), (4.0, 4.0), (0.0, 4.0), (-1.0, 3.0), (-1.0, 1.0))
+
 ROUTES: dict[str, Route] = {
     "square": Route("square", _square(2.0), closed=True),
-    "loop": Route(
-        "loop",
-        ((0.0, 0.0), (4.0, 0.0), (5.0, 1.0), (5.0, 3.0), (4.0, 4.0), (0.0, 4.0), (-1.0, 3.0), (-1.0, 1.0)),
-        closed=True,
-    ),
+    "loop": Route("loop", _LOOP, closed=True),
+    # The loop, then its first metres again: the camera sees the start from the start's own viewpoint, which
+    # a visual loop closure needs (a closed route arrives at the start from the side, looking elsewhere).
+    "loop_revisit": Route("loop_revisit", (*_LOOP, (0.0, 0.0), (1.5, 0.0))),
     "survey": Route("survey", _survey(5.0, 3.0, 4)),
     "line": Route("line", ((0.0, 0.0), (3.0, 0.0))),
 }

@@ -23,6 +23,7 @@ import numpy as np
 
 from fleetslam.geometry import pose_to_quat
 from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware.conversions import transform_msg
 from fleetslam.middleware.typesys import get_type, header, stamp_from_ns
 from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.robot.node import BaseControllerNode
@@ -108,23 +109,6 @@ def odometry_msg(pose: np.ndarray, linear: np.ndarray, angular: np.ndarray, stam
             covariance=np.zeros(36),
         ),
     )
-
-
-def transform_msg(pose: np.ndarray, parent: str, child: str, stamp_ns: int) -> Any:
-    """tf2_msgs/msg/TFMessage with one transform ``T_parent_child``."""
-    t, q = pose_to_quat(pose)
-    vec3 = get_type("geometry_msgs/msg/Vector3")
-    transform = get_type("geometry_msgs/msg/TransformStamped")(
-        header=header(parent, stamp_ns),
-        child_frame_id=child,
-        transform=get_type("geometry_msgs/msg/Transform")(
-            translation=vec3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
-            rotation=get_type("geometry_msgs/msg/Quaternion")(
-                x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
-            ),
-        ),
-    )
-    return get_type("tf2_msgs/msg/TFMessage")(transforms=[transform])
 
 
 @dataclass

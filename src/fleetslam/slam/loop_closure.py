@@ -32,10 +32,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fleetslam.errors import MissingExtraError, SlamError
-from fleetslam.geometry import invert, make_pose
+from fleetslam.geometry import invert, make_pose, rotation_angle
 from fleetslam.slam.bayes_filter import VIRTUAL_PLACE, BayesFilter, adjust_likelihood
 from fleetslam.slam.database import MapDatabase
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
+from fleetslam.slam.matching import match_mutual
 from fleetslam.slam.memory import Memory
 from fleetslam.slam.signature import Link, LinkType, Signature
 from fleetslam.slam.vocabulary import VisualVocabulary
@@ -92,7 +93,16 @@ class LoopHypothesis:
 
 
 class GeometricVerifier:
-    """PnP RANSAC between the query's keypoints and the candidate's 3D points matched through visual words."""
+    """PnP RANSAC between the query's keypoints and the candidate's 3D points (RTAB-Map's RegistrationVis).
+
+    Correspondences come from descriptor matching (``"descriptors"``, default: mutual nearest neighbours with
+    the ratio test, as RTAB-Map re-matches features for registration) or from shared visual words that occur
+    once in each location (``"words"``, cheaper, but a growing vocabulary splits one landmark into several
+    words). The pose is refined by Levenberg–Marquardt on the inliers. With ``max_disagreement`` set, PnP is
+    also solved the other way (the query's 3D points in the candidate's image) and the two estimates must
+    agree: a repeated pattern (shelves, tiles) can give a consistent but wrong solution one way, rarely the
+    same one both ways.
+    """
 
     def __init__(
         self,
@@ -102,14 +112,25 @@ class GeometricVerifier:
         reprojection_error: float = 2.0,
         iterations: int = 300,
         max_depth: float = 0.0,
+        correspondences: str = "descriptors",
+        nndr_ratio: float = 0.8,
+        max_disagreement: tuple[float, float] | None = (0.05, np.radians(2.0)),
     ) -> None:
-        """``camera_to_base`` is ``T_base_camera`` (identity when poses are camera poses)."""
+        """``camera_to_base`` is ``T_base_camera`` (identity when poses are camera poses);
+        ``max_disagreement`` is (metres, radians) between the two PnP directions, None to skip that check."""
+        if correspondences not in ("descriptors", "words"):
+            raise SlamError(
+                f"loop verification: correspondences must be 'descriptors' or 'words', got {correspondences!r}"
+            )
         self.camera_matrix = np.asarray(camera_matrix, dtype=np.float64).reshape(3, 3)
         self.base_camera = np.eye(4) if camera_to_base is None else np.asarray(camera_to_base, dtype=np.float64)
         self.min_inliers = min_inliers
         self.reprojection_error = reprojection_error
         self.iterations = iterations
         self.max_depth = max_depth
+        self.mode = correspondences
+        self.nndr_ratio = nndr_ratio
+        self.max_disagreement = max_disagreement
 
     @staticmethod
     def correspondences(query: Signature, candidate: Signature) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -126,22 +147,16 @@ class GeometricVerifier:
             np.array([c_index[w] for w in common], dtype=np.intp),
         )
 
-    def verify(self, query: Signature, candidate: Signature) -> VerificationResult:
-        """Estimate ``T_candidate_query``; rejected below ``min_inliers``."""
-        try:
-            import cv2
-        except ImportError as err:
-            raise MissingExtraError("opencv-python-headless", "slam") from err
-        q_idx, c_idx = self.correspondences(query, candidate)
-        points = candidate.points3d[c_idx].astype(np.float64)
+    def _valid_points(self, points: NDArray[np.floating]) -> NDArray[np.bool_]:
         valid = np.isfinite(points).all(axis=1) & (points[:, 2] > 0) if len(points) else np.zeros(0, bool)
         if self.max_depth > 0 and len(points):
             valid &= points[:, 2] <= self.max_depth
-        points = points[valid]
-        pixels = query.keypoints[q_idx][valid].astype(np.float64)
-        n = len(points)
-        if n < max(self.min_inliers, 4):
-            return VerificationResult(None, 0, n, f"only {n} correspondences (< {self.min_inliers})")
+        return valid
+
+    def _pnp(self, points: NDArray[np.float64], pixels: NDArray[np.float64]) -> tuple[NDArray[np.float64] | None, int]:
+        """``T_camera_points`` (the points' frame seen from the camera of ``pixels``) and the inlier count."""
+        import cv2
+
         # OpenCV's RANSAC draws from the global RNG; a fixed seed keeps verification deterministic.
         cv2.setRNGSeed(0)
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
@@ -154,13 +169,59 @@ class GeometricVerifier:
             confidence=0.99,
             flags=cv2.SOLVEPNP_EPNP,
         )
-        count = 0 if inliers is None else len(inliers)
-        if not ok or count < self.min_inliers:
-            return VerificationResult(None, count, n, f"{count} PnP inliers (< {self.min_inliers})")
+        if not ok or inliers is None or len(inliers) < 4:
+            return None, 0 if inliers is None else len(inliers)
+        index = inliers.reshape(-1)
+        rvec, tvec = cv2.solvePnPRefineLM(points[index], pixels[index], self.camera_matrix, None, rvec, tvec)
         rotation, _ = cv2.Rodrigues(rvec)
-        query_cam_from_candidate_cam = make_pose(rotation, tvec.ravel())
-        candidate_cam_from_query_cam = invert(query_cam_from_candidate_cam)
-        transform = self.base_camera @ candidate_cam_from_query_cam @ invert(self.base_camera)
+        pose = make_pose(rotation, tvec.ravel())
+        # Inliers again under the refined pose: the count that is compared with min_inliers.
+        camera = points @ rotation.T + tvec.reshape(1, 3)
+        in_front = camera[:, 2] > 1e-6
+        uv = camera[:, :2] / np.where(in_front, camera[:, 2], 1.0)[:, None]
+        uv = uv * np.diag(self.camera_matrix)[:2] + self.camera_matrix[:2, 2]
+        error = np.linalg.norm(uv - pixels, axis=1)
+        return pose, int(np.count_nonzero(in_front & (error <= self.reprojection_error)))
+
+    def verify(self, query: Signature, candidate: Signature) -> VerificationResult:
+        """Estimate ``T_candidate_query``; rejected below ``min_inliers`` or when the two directions disagree."""
+        try:
+            import cv2  # noqa: F401
+        except ImportError as err:
+            raise MissingExtraError("opencv-python-headless", "slam") from err
+        if self.mode == "words":
+            q_idx, c_idx = self.correspondences(query, candidate)
+        else:
+            q_idx, c_idx = match_mutual(query.descriptors, candidate.descriptors, self.nndr_ratio)
+        candidate_points = candidate.points3d[c_idx].astype(np.float64)
+        valid = self._valid_points(candidate_points)
+        n = int(valid.sum())
+        if n < max(self.min_inliers, 4):
+            return VerificationResult(None, 0, n, f"only {n} correspondences (< {self.min_inliers})")
+        pixels = query.keypoints[q_idx][valid].astype(np.float64)
+        T_query_candidate, count = self._pnp(candidate_points[valid], pixels)
+        if T_query_candidate is None or count < self.min_inliers:
+            return VerificationResult(None, count, n, f"{count} PnP inliers (< {self.min_inliers})")
+        candidate_from_query = invert(T_query_candidate)
+        if self.max_disagreement is not None:
+            query_points = query.points3d[q_idx].astype(np.float64)
+            back = self._valid_points(query_points)
+            reverse, reverse_count = (None, 0)
+            if back.sum() >= max(self.min_inliers, 4):
+                reverse, reverse_count = self._pnp(
+                    query_points[back], candidate.keypoints[c_idx][back].astype(np.float64)
+                )
+            if reverse is None or reverse_count < self.min_inliers:
+                return VerificationResult(
+                    None, count, n, f"reverse PnP: {reverse_count} inliers (< {self.min_inliers})"
+                )
+            difference = invert(reverse) @ candidate_from_query
+            metres, radians = float(np.linalg.norm(difference[:3, 3])), rotation_angle(difference)
+            if metres > self.max_disagreement[0] or radians > self.max_disagreement[1]:
+                return VerificationResult(
+                    None, count, n, f"the two PnP directions disagree by {metres:.3f} m, {np.degrees(radians):.2f} deg"
+                )
+        transform = self.base_camera @ candidate_from_query @ invert(self.base_camera)
         return VerificationResult(transform, count, n, "accepted")
 
 
@@ -324,6 +385,13 @@ def make_loop_closure_detector(
         reprojection_error=loop.pnp_reprojection_error,
         iterations=loop.pnp_iterations,
         max_depth=loop.pnp_max_depth,
+        correspondences=loop.verification_correspondences,
+        nndr_ratio=loop.nndr_ratio,
+        max_disagreement=(
+            (loop.max_direction_disagreement, np.radians(loop.max_direction_disagreement_deg))
+            if loop.max_direction_disagreement > 0
+            else None
+        ),
     )
     return LoopClosureDetector(
         mem,

@@ -73,6 +73,18 @@ class LoopClosureConfig(ConfigModel):
     pnp_max_depth: float = Field(0.0, ge=0.0)
     """Ignore candidate 3D points farther than this (metres, 0 = no limit; RTAB-Map Vis/MaxDepth)."""
 
+    verification_correspondences: Literal["descriptors", "words"] = "descriptors"
+    """How verification pairs keypoints: 'descriptors' re-matches the two locations' descriptors (mutual
+    nearest neighbours + ratio test, as RTAB-Map's registration does); 'words' pairs keypoints whose visual
+    word occurs once in each (cheaper; an incremental vocabulary often splits one landmark into several words)."""
+
+    max_direction_disagreement: float = Field(0.05, ge=0.0)
+    """Also solve PnP the other way (query points in the candidate image) and reject when the two estimates
+    differ by more than this many metres (0 = skip the check): repeated patterns fool one direction."""
+
+    max_direction_disagreement_deg: float = Field(2.0, gt=0.0)
+    """Rotation tolerance between the two PnP directions (degrees)."""
+
 
 class MemoryConfig(ConfigModel):
     """Memory management: short-term memory, working memory, long-term memory (RTAB-Map Mem/* parameters)."""

@@ -2,11 +2,16 @@
 
 Subscribes ``camera/rgb/image_raw`` (rgb8/bgr8), ``camera/depth/image_raw`` (32FC1 m or 16UC1 mm) and
 ``camera/rgb/camera_info``; frames are paired by stamp and fed to :class:`~fleetslam.slam.pipeline.SlamPipeline`.
-Publishes ``slam/odom`` (nav_msgs/Odometry, camera pose in ``map``), ``path`` (nav_msgs/Path of keyframes),
-``liveframes`` (Keyframe without images, every frame), ``keyframes`` (Keyframe with JPEG colour, PNG depth in mm,
-keypoints, 3D points and descriptors) and ``graph`` (KeyframeGraph: every keyframe pose and constraint; after a
-loop closure all poses are re-sent, never points). Services: ``slam/save_map`` (SaveMap: map.db),
-``slam/reset`` (Trigger), ``slam/pause`` (SetBool).
+With wheel odometry (``odom``, nav_msgs/Odometry of ``base_link`` in ``odom``, and ``tf_static`` giving
+``base_link`` → camera), each frame gets the wheel pose at its stamp as prior: the visual odometry predicts
+with it and follows it when tracking is lost (a blank wall), so the map does not break.
+Publishes ``slam/odom`` (nav_msgs/Odometry, camera pose in ``map``), ``tf`` (``map`` → ``odom``: the correction
+that puts the wheel odometry, or without it the visual odometry, on the optimised map), ``path``
+(nav_msgs/Path of keyframes), ``liveframes`` (Keyframe without images, every frame), ``keyframes`` (Keyframe
+with JPEG colour, PNG depth in mm, keypoints, 3D points, descriptors and the bag-of-words vector: visual word
+ids with TF-IDF weights) and ``graph`` (KeyframeGraph: every keyframe pose and constraint; after a loop
+closure all poses are re-sent, never points). Services: ``slam/save_map`` (SaveMap: map.db), ``slam/reset``
+(Trigger), ``slam/pause`` (SetBool).
 """
 
 from __future__ import annotations
@@ -20,11 +25,13 @@ from pydantic import Field
 
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
-from fleetslam.geometry import pose_to_quat
+from fleetslam.geometry import invert, pose_to_quat
 from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware.conversions import pose_matrix, transform_matrix, transform_msg
 from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
+from fleetslam.slam.pose_buffer import PoseBuffer
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +51,14 @@ class SlamNodeConfig(ConfigModel):
     """Unpaired colour images kept while waiting for their depth."""
     map_db: str = "map.db"
     """Default file of the save_map service."""
+    use_wheel_odometry: bool = True
+    """Subscribe ``odom`` and ``tf_static`` and give every frame the wheel pose at its stamp as prior."""
+    odom_frame: str = "odom"
+    """Child frame of the published ``map`` → ``odom`` transform."""
+    base_frame: str = "base_link"
+    """Robot frame of the wheel odometry; ``tf_static`` must give base_frame → camera_frame."""
+    odom_tolerance: float = Field(default=0.1, gt=0.0)
+    """How far (s) a camera stamp may lie outside the buffered wheel poses and still get a prior."""
     peers: list[str] = Field(default_factory=list)
     """Other agents whose `graph` and `keyframes` this agent subscribes to (the distributed framework's
     cross-agent subscription; kept in ``peer_graphs`` / ``peer_keyframes`` for fusion and inter-agent loops)."""
@@ -87,9 +102,14 @@ class SlamNode:
         self._pending: dict[int, Any] = {}
         self._depth: dict[int, Any] = {}
         self.agent = node.namespace.strip("/")
+        self.wheel_poses = PoseBuffer(horizon=5.0, tolerance=self.config.odom_tolerance)
+        self.base_camera: np.ndarray | None = None
+        """``T_base_camera`` from tf_static, once received."""
+        self.priors_used = 0
         qos = QoSProfile(depth=5)
         self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "slam/odom", qos)
         self.path_pub = node.create_publisher("nav_msgs/msg/Path", "path", QoSProfile(depth=1))
+        self.tf_pub = node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=10))
         self.live_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "liveframes", qos)
         self.keyframe_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
         self.graph_pub = node.create_publisher(
@@ -99,6 +119,12 @@ class SlamNode:
         node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images)
         node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images)
         node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
+        if self.config.use_wheel_odometry:
+            node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=50))
+            node.create_subscription(
+                "tf2_msgs/msg/TFMessage", "tf_static", self.on_tf_static,
+                QoSProfile(durability="transient_local", depth=1),
+            )  # fmt: skip
         self.peer_graphs: dict[str, Any] = {}
         self.peer_keyframes: dict[str, int] = {}
         for peer in self.config.peers:
@@ -121,6 +147,23 @@ class SlamNode:
             self.pipeline = SlamPipeline(self.config.slam, intrinsics=intrinsics)
             log.info("%s: SLAM started with fx=%.1f at %dx%d", self.agent, intrinsics.fx, msg.width, msg.height)
         self.camera_info = msg
+
+    def on_odom(self, msg: Any) -> None:
+        self.wheel_poses.add(ns_from_stamp(msg.header.stamp) / 1e9, pose_matrix(msg.pose.pose))
+
+    def on_tf_static(self, msg: Any) -> None:
+        for transform in msg.transforms:
+            parent = transform.header.frame_id.split("/")[-1]
+            child = transform.child_frame_id.split("/")[-1]
+            if parent == self.config.base_frame and child == self.config.camera_frame:
+                self.base_camera = transform_matrix(transform.transform)
+
+    def wheel_prior(self, stamp: float) -> np.ndarray | None:
+        """``T_odom_camera`` at ``stamp`` from the wheel odometry, when both it and the extrinsic are known."""
+        if self.base_camera is None:
+            return None
+        base = self.wheel_poses.at(stamp)
+        return None if base is None else base @ self.base_camera
 
     def on_rgb(self, msg: Any) -> None:
         self._pair(ns_from_stamp(msg.header.stamp), rgb=msg)
@@ -154,10 +197,13 @@ class SlamNode:
     def process(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> StepResult | None:
         if self.pipeline is None or self.paused:
             return None
-        frame = RGBDFrame(self.frames, stamp_ns / 1e9, image_to_array(rgb_msg), image_to_array(depth_msg))
+        prior = self.wheel_prior(stamp_ns / 1e9)
+        self.priors_used += prior is not None
+        frame = RGBDFrame(self.frames, stamp_ns / 1e9, image_to_array(rgb_msg), image_to_array(depth_msg), prior=prior)
         self.frames += 1
         step = self.pipeline.step(frame)
         self.publish_pose(stamp_ns, step)
+        self.publish_map_to_odom(stamp_ns, step, prior)
         if step.keyframe_id is not None:
             self.publish_keyframe(stamp_ns, step, frame)
             self.publish_graph(stamp_ns, optimized=step.loop_closed)
@@ -176,6 +222,30 @@ class SlamNode:
         live.header = odom.header
         self.live_pub.publish(live)
 
+    def publish_map_to_odom(self, stamp_ns: int, step: StepResult, prior: np.ndarray | None) -> None:
+        """``T_map_odom``: the optimised camera pose composed with the inverse of the odometry's camera pose
+        (the wheel odometry's when there is one, so that map → odom → base_link is one tf tree)."""
+        odometry_camera = prior if prior is not None else step.odometry.pose
+        self.tf_pub.publish(
+            transform_msg(step.pose @ invert(odometry_camera), self.config.map_frame, self.config.odom_frame, stamp_ns)
+        )
+
+    def bag_of_words(self, keyframe_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """Word ids and TF-IDF weights of a keyframe's location (empty without the loop-closure side)."""
+        empty = np.zeros(0, np.uint32), np.zeros(0, np.float32)
+        if self.pipeline is None or self.pipeline.detector is None:
+            return empty
+        memory = self.pipeline.detector.memory
+        signature = memory.signatures.get(keyframe_id)
+        if signature is None or signature.word_ids.size == 0:
+            return empty
+        words, counts = np.unique(signature.word_ids[signature.word_ids >= 0], return_counts=True)
+        locations = max(len(memory.signatures), 1)
+        vocabulary = memory.vocabulary
+        idf = np.array([np.log10(locations / max(len(vocabulary.references(int(w))), 1)) for w in words])
+        weights = counts / signature.word_ids.size * idf
+        return words.astype(np.uint32), weights.astype(np.float32)
+
     def publish_keyframe(self, stamp_ns: int, step: StepResult, frame: RGBDFrame) -> None:
         import cv2
 
@@ -189,6 +259,7 @@ class SlamNode:
         binary = descriptors.ndim == 2 and descriptors.dtype == np.uint8
         keyframe_id = int(step.keyframe_id or 0)
         pose = self.pipeline.keyframe_poses()[keyframe_id] if self.pipeline is not None else step.pose
+        word_ids, word_weights = self.bag_of_words(keyframe_id)
         keyframe_type = get_type("fleetslam_msgs/msg/Keyframe")
         msg = keyframe_type(
             header=header(self.config.map_frame, stamp_ns), agent=self.agent, id=keyframe_id,
@@ -199,7 +270,7 @@ class SlamNode:
             points=np.asarray(result.points3d, np.float32).reshape(-1),
             descriptor_length=int(descriptors.shape[1]) if binary else 0,
             descriptors=descriptors.reshape(-1) if binary else np.zeros(0, np.uint8),
-            word_ids=np.zeros(0, np.uint32), word_weights=np.zeros(0, np.float32),
+            word_ids=word_ids, word_weights=word_weights,
         )  # fmt: skip
         self.keyframe_pub.publish(msg)
 

@@ -23,6 +23,7 @@ from fleetslam.datasets.base import Intrinsics
 from fleetslam.geometry import invert, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
+from fleetslam.slam.matching import match_by_projection
 
 logger = logging.getLogger(__name__)
 
@@ -151,7 +152,10 @@ class VisualOdometry:
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         gray = rgb if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        feats = self.extractor.detect(gray)
+        mask = None
+        if self.config.depth_as_mask:
+            mask = ((depth > self.config.min_depth) & (depth < self.config.max_depth)).astype(np.uint8)
+        feats = self.extractor.detect(gray, mask)
         points_cam, valid = backproject(
             feats.keypoints, depth, self.intrinsics, self.config.min_depth, self.config.max_depth
         )
@@ -221,27 +225,35 @@ class VisualOdometry:
         where each map point should appear (repetitive texture such as floor tiles then cannot mismatch)."""
         if len(feats) < 2 or self.local_map.descriptors is None or len(self.local_map) < 2:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        mask = None
         if predicted is not None:
             T_cw = invert(predicted)
             cam = self.local_map.points @ T_cw[:3, :3].T + T_cw[:3, 3]
-            z = np.maximum(cam[:, 2], 1e-6)
-            u = self.intrinsics.fx * cam[:, 0] / z + self.intrinsics.cx
-            v = self.intrinsics.fy * cam[:, 1] / z + self.intrinsics.cy
-            du = feats.keypoints[:, 0:1] - u[None, :]
-            dv = feats.keypoints[:, 1:2] - v[None, :]
-            near = (du * du + dv * dv < self.config.search_radius**2) & (cam[:, 2] > 0.0)[None, :]
-            mask = near.astype(np.uint8)
-        knn = self._matcher.knnMatch(feats.descriptors, self.local_map.descriptors, k=2, mask=mask)
-        q, t = [], []
+            front = np.flatnonzero(cam[:, 2] > self.config.min_depth)
+            z = cam[front, 2]
+            projected = np.stack(
+                [
+                    self.intrinsics.fx * cam[front, 0] / z + self.intrinsics.cx,
+                    self.intrinsics.fy * cam[front, 1] / z + self.intrinsics.cy,
+                ],
+                axis=1,
+            )
+            q, t = match_by_projection(
+                feats.keypoints,
+                feats.descriptors,
+                projected,
+                self.local_map.descriptors[front],
+                self.config.search_radius,
+                self.config.match_ratio,
+                self.config.max_descriptor_distance if self.extractor.binary else 0.0,
+            )
+            return q, front[t]
+        knn = self._matcher.knnMatch(feats.descriptors, self.local_map.descriptors, k=2)
         ratio = self.config.match_ratio
-        for pair in knn:
-            if (len(pair) == 2 and pair[0].distance < ratio * pair[1].distance) or (
-                len(pair) == 1 and mask is not None
-            ):
-                q.append(pair[0].queryIdx)
-                t.append(pair[0].trainIdx)
-        return np.asarray(q, np.intp), np.asarray(t, np.intp)
+        pairs = [(p[0].queryIdx, p[0].trainIdx) for p in knn if len(p) == 2 and p[0].distance < ratio * p[1].distance]
+        if not pairs:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        q_index, t_index = zip(*pairs, strict=True)
+        return np.asarray(q_index, np.intp), np.asarray(t_index, np.intp)
 
     def _solve(
         self,

@@ -210,9 +210,7 @@ class SlamPipeline:
             self.graph.add_node(node, guess)
             info = self.odometry_information * (0.01 if result.lost else 1.0)
             self.graph.add_odometry(last_kf, node, odometry_transform, info)
-        transform = None
-        if hypothesis is not None and hypothesis.match_id is not None:
-            transform = hypothesis.transform if hypothesis.accepted else self._verify_by_descriptors(hypothesis)
+        transform = hypothesis.transform if hypothesis is not None and hypothesis.accepted else None
         if hypothesis is not None and transform is not None and hypothesis.match_id is not None:
             pair = (int(hypothesis.match_id), node)
             if self.graph.add_loop(pair[0], node, transform, self.loop_information):
@@ -221,53 +219,6 @@ class SlamPipeline:
                 rejected.append(pair)
             record["loop"] = {"match": pair[0], "accepted": pair in accepted}
         return node
-
-    def _verify_by_descriptors(self, hypothesis: Any) -> NDArray[np.float64] | None:
-        """``T_match_query`` from descriptor matches + PnP RANSAC, for hypotheses above the threshold that
-        the word-based verifier refused for too few correspondences (repetitive scenes quantise many
-        features to shared words, leaving few unique ones). The link is added to the memory as well."""
-        from fleetslam.slam.features import import_cv2
-        from fleetslam.slam.signature import Link, LinkType
-
-        cfg = self.config.loop_closure
-        if (
-            not self.config.loop_descriptor_fallback
-            or hypothesis.probability < cfg.loop_threshold
-            or not hypothesis.reason.startswith("only")
-        ):
-            return None
-        cv2 = import_cv2()
-        memory = self.detector.memory
-        query = memory.signatures[hypothesis.query_id]
-        match = memory.signatures[hypothesis.match_id]
-        if len(query.descriptors) < cfg.min_inliers or len(match.descriptors) < cfg.min_inliers:
-            return None
-        norm = cv2.NORM_HAMMING if query.descriptors.dtype == np.uint8 else cv2.NORM_L2
-        knn = cv2.BFMatcher(norm).knnMatch(query.descriptors, match.descriptors, k=2)
-        pairs = [(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < 0.8 * m[1].distance]
-        if len(pairs) < cfg.min_inliers:
-            return None
-        qi, mi = (np.asarray(x, np.intp) for x in zip(*pairs, strict=True))
-        object_points = np.asarray(match.points3d, np.float64)[mi]
-        image_points = np.asarray(query.keypoints, np.float64)[qi]
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            object_points,
-            image_points,
-            self.intrinsics.K,
-            None,
-            iterationsCount=cfg.pnp_iterations,
-            reprojectionError=cfg.pnp_reprojection_error,
-        )
-        # Stricter than the word-based check: half of the matches must agree, since a repetitive pattern
-        # can give a consistent but wrong PnP solution from a handful of matches.
-        if not ok or inliers is None or len(inliers) < max(cfg.min_inliers, 0.5 * len(pairs)):
-            return None
-        T_query_match = np.eye(4)
-        T_query_match[:3, :3] = cv2.Rodrigues(rvec)[0]
-        T_query_match[:3, 3] = tvec.reshape(3)
-        transform = invert(T_query_match)
-        memory.add_link(Link(match.id, query.id, LinkType.LOOP, transform, self.loop_information.copy()), True)
-        return transform
 
 
 def run_offline(

@@ -1,0 +1,109 @@
+"""Descriptor matching (pure NumPy/SciPy): guided matching by projection and mutual ratio-test matching.
+
+Guided matching compares each keypoint only with the map points that project within a radius of it, so the
+cost grows with the number of nearby pairs (tens of thousands) instead of every keypoint × every map point
+(millions): candidate pairs come from a k-d tree over the keypoints, their distances from a vectorised
+Hamming popcount (binary descriptors) or L2 norm (float descriptors).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+EMPTY = np.zeros(0, np.intp)
+
+
+def pair_distances(a: NDArray[Any], b: NDArray[Any], ia: NDArray[np.intp], ib: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Distances between descriptors ``a[ia[k]]`` and ``b[ib[k]]``: Hamming bits for uint8 rows, else L2."""
+    if a.dtype == np.uint8:
+        return np.bitwise_count(a[ia] ^ b[ib]).sum(axis=1, dtype=np.int64).astype(np.float64)
+    diff = a[ia].astype(np.float32) - b[ib].astype(np.float32)
+    return np.sqrt(np.einsum("ij,ij->i", diff, diff)).astype(np.float64)
+
+
+def _best_per_query(
+    query: NDArray[np.intp], train: NDArray[np.intp], distance: NDArray[np.float64], ratio: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+    """Per query index, its nearest train index if it passes the ratio test against the second nearest (a
+    query with one candidate passes)."""
+    order = np.lexsort((distance, query))
+    query, train, distance = query[order], train[order], distance[order]
+    first = np.ones(len(query), bool)
+    first[1:] = query[1:] != query[:-1]
+    starts = np.flatnonzero(first)
+    has_second = np.zeros(len(starts), bool)
+    second = np.full(len(starts), np.inf)
+    following = starts + 1
+    inside = following < len(query)
+    inside[inside] = ~first[following[inside]]
+    has_second[inside] = True
+    second[inside] = distance[following[inside]]
+    best = distance[starts]
+    keep = ~has_second | (best < ratio * second)
+    return query[starts][keep], train[starts][keep], best[keep]
+
+
+def match_by_projection(
+    keypoints: NDArray[np.floating],
+    descriptors: NDArray[Any],
+    projected: NDArray[np.floating],
+    map_descriptors: NDArray[Any],
+    radius: float,
+    ratio: float,
+    max_distance: float = 0.0,
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Match keypoints (N, 2) to map points whose predicted image positions ``projected`` (M, 2) lie within
+    ``radius`` pixels: nearest descriptor with a ratio test among those candidates.
+
+    ``max_distance`` > 0 also bounds the descriptor distance. Returns (keypoint indices, map indices).
+    """
+    if len(keypoints) == 0 or len(projected) == 0:
+        return EMPTY, EMPTY
+    pairs = cKDTree(np.asarray(keypoints, np.float64)).sparse_distance_matrix(
+        cKDTree(np.asarray(projected, np.float64)), radius, output_type="ndarray"
+    )
+    if len(pairs) == 0:
+        return EMPTY, EMPTY
+    query = pairs["i"].astype(np.intp)
+    train = pairs["j"].astype(np.intp)
+    distance = pair_distances(descriptors, map_descriptors, query, train)
+    if max_distance > 0:
+        close = distance <= max_distance
+        query, train, distance = query[close], train[close], distance[close]
+    query, train, distance = _best_per_query(query, train, distance, ratio)
+    return query, train
+
+
+def match_mutual(
+    descriptors_a: NDArray[Any], descriptors_b: NDArray[Any], ratio: float, max_distance: float = 0.0
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Brute-force matches a → b that pass the ratio test both ways and are each other's nearest neighbour
+    (OpenCV's brute-force k-NN: Hamming for uint8 rows, else L2)."""
+    from fleetslam.slam.features import import_cv2
+
+    if len(descriptors_a) < 2 or len(descriptors_b) < 2:
+        return EMPTY, EMPTY
+    cv2 = import_cv2()
+    binary = descriptors_a.dtype == np.uint8
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING if binary else cv2.NORM_L2)
+    if not binary:
+        descriptors_a, descriptors_b = descriptors_a.astype(np.float32), descriptors_b.astype(np.float32)
+
+    def nearest(x: NDArray[Any], y: NDArray[Any]) -> dict[int, int]:
+        out = {}
+        for pair in matcher.knnMatch(x, y, k=2):
+            good = len(pair) == 2 and pair[0].distance < ratio * pair[1].distance
+            if good and (max_distance <= 0 or pair[0].distance <= max_distance):
+                out[pair[0].queryIdx] = pair[0].trainIdx
+        return out
+
+    forward, backward = nearest(descriptors_a, descriptors_b), nearest(descriptors_b, descriptors_a)
+    pairs = sorted((a, b) for a, b in forward.items() if backward.get(b) == a)
+    if not pairs:
+        return EMPTY, EMPTY
+    a_index, b_index = zip(*pairs, strict=True)
+    return np.asarray(a_index, np.intp), np.asarray(b_index, np.intp)

@@ -1,0 +1,60 @@
+"""A time-ordered buffer of poses with interpolation (wheel odometry looked up at camera stamps)."""
+
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.geometry import so3_exp, so3_log
+
+
+def interpolate_pose(a: NDArray[np.float64], b: NDArray[np.float64], fraction: float) -> NDArray[np.float64]:
+    """The pose a fraction of the way from ``a`` to ``b``: linear in translation, geodesic in rotation."""
+    out = np.eye(4)
+    delta = a[:3, :3].T @ b[:3, :3]
+    out[:3, :3] = a[:3, :3] @ so3_exp(fraction * so3_log(delta))
+    out[:3, 3] = (1.0 - fraction) * a[:3, 3] + fraction * b[:3, 3]
+    return out
+
+
+class PoseBuffer:
+    """Poses by stamp (seconds), the last ``horizon`` seconds of them."""
+
+    def __init__(self, horizon: float = 5.0, tolerance: float = 0.1) -> None:
+        """``tolerance``: how far past the newest (or before the oldest) pose a lookup may be and still get it."""
+        self.horizon = horizon
+        self.tolerance = tolerance
+        self._stamps: list[float] = []
+        self._poses: list[NDArray[np.float64]] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def clear(self) -> None:
+        self._stamps.clear()
+        self._poses.clear()
+
+    def add(self, stamp: float, pose: NDArray[np.float64]) -> None:
+        """Add a pose; out-of-order stamps are inserted in place, old ones beyond the horizon dropped."""
+        index = bisect.bisect_right(self._stamps, stamp)
+        self._stamps.insert(index, stamp)
+        self._poses.insert(index, np.asarray(pose, np.float64))
+        cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.horizon)
+        if cut > 0:
+            del self._stamps[:cut]
+            del self._poses[:cut]
+
+    def at(self, stamp: float) -> NDArray[np.float64] | None:
+        """The pose at ``stamp`` (interpolated between neighbours), or None when outside the buffer."""
+        if not self._stamps:
+            return None
+        index = bisect.bisect_left(self._stamps, stamp)
+        if index == 0:
+            return self._poses[0].copy() if self._stamps[0] - stamp <= self.tolerance else None
+        if index == len(self._stamps):
+            return self._poses[-1].copy() if stamp - self._stamps[-1] <= self.tolerance else None
+        t0, t1 = self._stamps[index - 1], self._stamps[index]
+        fraction = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
+        return interpolate_pose(self._poses[index - 1], self._poses[index], fraction)
