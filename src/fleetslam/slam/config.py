@@ -137,3 +137,8 @@ class SlamConfig(ConfigModel):
 
     loop_closure_enabled: bool = True
     """Detect loop closures (off: odometry and pose graph only)."""
+
+    relocalization_candidates: int = Field(default=10, ge=0)
+    """When tracking is lost, verify the frame against this many most recent locations in memory and
+    continue from the first that passes PnP verification (0 = never; the odometry then follows the wheel
+    prior or constant velocity and restarts its local map where it is)."""

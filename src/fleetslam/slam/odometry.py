@@ -218,6 +218,20 @@ class VisualOdometry:
             t0,
         )
 
+    def relocalize(self, result: OdometryResult, pose: NDArray[np.float64]) -> OdometryResult:
+        """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
+        from it: the local map is re-seeded with this frame's points at the corrected pose."""
+        self.pose = np.asarray(pose, np.float64).copy()
+        self._velocity = np.eye(4)
+        self.local_map.clear()
+        world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
+        self.local_map.add(world, result.descriptors)
+        self._keyframe_pose = self.pose.copy()
+        self._keyframe_features = len(result.points3d)
+        result.pose = self.pose.copy()
+        result.lost = False
+        return result
+
     def _match(
         self, feats: Features, predicted: NDArray[np.float64] | None
     ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:

@@ -99,6 +99,9 @@ class SlamPipeline:
         t0 = time.perf_counter()
         result = self.odometry.track(frame.rgb, frame.depth, frame.stamp, frame.prior)
         t_odom = (time.perf_counter() - t0) * 1e3
+        relocalized = None
+        if result.lost and self.detector is not None and self.config.relocalization_candidates > 0:
+            relocalized = self._relocalize(frame.stamp, result)
         record: dict[str, Any] = {
             "index": frame.index,
             "stamp": frame.stamp,
@@ -107,6 +110,8 @@ class SlamPipeline:
             "keyframe": result.is_keyframe,
             "lost": result.lost,
         }
+        if relocalized is not None:
+            record["relocalized_on"] = relocalized
         new_keyframe = None
         loops_before = len(self._accepted)
         if result.is_keyframe or self._last_kf is None:
@@ -126,6 +131,31 @@ class SlamPipeline:
         return StepResult(
             pose=pose, odometry=result, keyframe_id=new_keyframe, loop_closed=len(self._accepted) > loops_before
         )
+
+    def _relocalize(self, stamp: float, result: Any) -> int | None:
+        """Verify a lost frame against the most recent locations in memory (PnP, as a loop closure) and,
+        on success, put the odometry back on the map there. Returns the location relocalised on, or None."""
+        from fleetslam.slam.signature import Signature
+
+        if len(result.points3d) < self.config.loop_closure.min_inliers:
+            return None
+        memory = self.detector.memory
+        query = Signature(
+            id=-1,
+            stamp=stamp,
+            pose=result.pose,
+            keypoints=result.keypoints,
+            points3d=result.points3d,
+            descriptors=result.descriptors,
+        )
+        candidates = [i for i in sorted(memory.signatures, reverse=True) if i in self.keyframe_odometry]
+        for location in candidates[: self.config.relocalization_candidates]:
+            verification = self.detector.verifier.verify(query, memory.signatures[location])
+            if verification.transform is not None:
+                self.odometry.relocalize(result, self.keyframe_odometry[location] @ verification.transform)
+                logger.info("relocalised on location %d (%d inliers)", location, verification.inliers)
+                return location
+        return None
 
     def keyframe_poses(self) -> dict[int, NDArray[np.float64]]:
         """Current (optimised) pose of every keyframe."""
