@@ -45,7 +45,16 @@ def _export(root: Path, n: int) -> Trajectory:
 
 def test_offline_run_writes_results_and_tracks_the_sweep(tmp_path: Path) -> None:
     gt = _export(tmp_path / "export", 24)
-    config = load_config(SlamConfig, overrides=["odometry.keyframe_translation=0.05"])
+    # The sweep accelerates at up to 9 m/s² and 5 rad/s² (a hand-held camera, not a ground robot): the motion
+    # prior is told so.
+    config = load_config(
+        SlamConfig,
+        overrides=[
+            "odometry.keyframe_translation=0.05",
+            "odometry.motion_prior_acceleration=10",
+            "odometry.motion_prior_angular_acceleration=10",
+        ],
+    )
     out = tmp_path / "out"
     result = run_offline(open_source(tmp_path / "export"), config, out, show_progress=False)
     for name in ("trajectory.txt", "keyframes.txt", "map.db", "config.yaml", "stats.json"):

@@ -87,6 +87,18 @@ class OdometryConfig(ConfigModel):
     max_prediction_error_deg: float = Field(default=5.0, gt=0.0)
     """A PnP pose rotated more than this from the prediction (degrees) is a failure."""
 
+    motion_prior_acceleration: float = Field(default=1.0, ge=0.0)
+    """Standard deviation of the linear acceleration (m/s², per axis) that the pose refinement allows away from
+    the motion prediction (constant velocity or wheel odometry): with Δt between frames the prediction is a
+    prior of σ = ½·a·Δt² next to the reprojection errors, which keeps frames with few or far points (PnP
+    ill-conditioned) where the motion says they are. 1 m/s² suits a ground robot; a hand-held camera needs
+    about 10 (and motion_prior_angular_acceleration about 10). 0 = reprojection errors only (OpenCV's
+    Levenberg–Marquardt)."""
+    motion_prior_angular_acceleration: float = Field(default=0.4, gt=0.0)
+    """Standard deviation of the angular acceleration (rad/s², per axis) allowed away from the prediction."""
+    motion_prior_gate: float = Field(default=1000.0, gt=0.0)
+    """The prior is dropped for a frame whose PnP estimate and prediction disagree by more than this squared
+    Mahalanobis distance (a collision or a slip, not noise)."""
     use_prior: bool = True
     """Use a per-frame prior pose (wheel odometry) as motion prediction and as fallback when lost."""
 

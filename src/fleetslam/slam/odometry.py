@@ -24,6 +24,7 @@ from fleetslam.geometry import invert, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.matching import match_by_projection
+from fleetslam.slam.pose_refinement import refine_pose_with_prior
 
 logger = logging.getLogger(__name__)
 
@@ -131,6 +132,8 @@ class VisualOdometry:
         self._keyframe_pose: NDArray[np.float64] | None = None
         self._keyframe_features = 0
         self.frames = 0
+        self._last_stamp: float | None = None
+        self._frame_interval = 1.0 / 30.0
 
     def _predict(self, prior: NDArray[np.float64] | None) -> NDArray[np.float64]:
         if prior is not None and self._previous_prior is not None and self.config.use_prior:
@@ -162,6 +165,9 @@ class VisualOdometry:
         t1 = time.perf_counter()
         timings["features"] = (t1 - t0) * 1e3
         predicted = self._predict(prior)
+        if self._last_stamp is not None and 0.0 < stamp - self._last_stamp < 1.0:
+            self._frame_interval = stamp - self._last_stamp
+        self._last_stamp = stamp
         prior_arr = None if prior is None else np.asarray(prior, dtype=np.float64)
 
         if self.frames == 0 or len(self.local_map) == 0:
@@ -298,8 +304,25 @@ class VisualOdometry:
         if not ok or inliers is None or len(inliers) < 4:
             return None, np.zeros(0, np.intp)
         index = inliers.reshape(-1).astype(np.intp)
-        rvec, tvec = cv2.solvePnPRefineLM(object_points[index], image_points[index], self._K, None, rvec, tvec)
-        return invert(_from_rvec_tvec(rvec, tvec)), index
+        if self.config.motion_prior_acceleration <= 0:
+            rvec, tvec = cv2.solvePnPRefineLM(object_points[index], image_points[index], self._K, None, rvec, tvec)
+            return invert(_from_rvec_tvec(rvec, tvec)), index
+        # How far the motion can depart from the prediction within one frame interval: ½·a·Δt².
+        half_dt2 = 0.5 * self._frame_interval**2
+        T_cw, _ = refine_pose_with_prior(
+            _from_rvec_tvec(rvec, tvec),
+            object_points[index],
+            image_points[index],
+            self._K,
+            invert(predicted),
+            (
+                self.config.motion_prior_acceleration * half_dt2,
+                self.config.motion_prior_angular_acceleration * half_dt2,
+            ),
+            huber_px=self.config.pnp_reprojection_error,
+            gate=self.config.motion_prior_gate,
+        )
+        return invert(T_cw), index
 
     def _consistent(self, pose: NDArray[np.float64], predicted: NDArray[np.float64]) -> bool:
         error = invert(predicted) @ pose

@@ -1,0 +1,121 @@
+"""Motion-only pose refinement: reprojection errors of matched map points plus a prior on the pose (pure).
+
+PnP alone is ill-conditioned when few points match or they are far away (a Kinect's depth at 4 m is
+quantised in ~3 cm steps), and one such frame's error becomes the next keyframe's map. A robot's motion over
+one frame is very predictable (constant velocity, or wheel odometry), so the refinement minimises
+
+    Σ ρ(‖π(T_cw·Xᵢ) − uᵢ‖² / σ_px²) + (T_cw ⊖ T_pred)ᵀ Σ_pred⁻¹ (T_cw ⊖ T_pred)
+
+with a Huber ρ by Gauss–Newton on a left perturbation of ``T_cw`` (camera ← world). With many well-spread
+points the reprojection term dominates and the prior changes nothing measurable; with a handful of far points
+the prior keeps the estimate where the motion says it must be.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.geometry import so3_exp, so3_log
+
+
+def _skew_rows(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3, 3) skew-symmetric matrices of the rows of ``p``."""
+    out = np.zeros((len(p), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -p[:, 2], p[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = p[:, 2], -p[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -p[:, 1], p[:, 0]
+    return out
+
+
+def _pose_error(pose: NDArray[np.float64], reference_inverse: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(translation, rotation vector) of ``pose · reference⁻¹``."""
+    error = pose @ reference_inverse
+    return np.concatenate([error[:3, 3], so3_log(error[:3, :3])])
+
+
+def _gauss_newton(
+    pose: NDArray[np.float64],
+    points_world: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    camera_matrix: NDArray[np.float64],
+    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+    pixel_std: float,
+    huber_px: float,
+    iterations: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """Minimise the robust reprojection error (plus the prior ``(T_prior⁻¹, information)`` if given); returns
+    the pose, the reprojection term's Gauss–Newton Hessian at it and the a-posteriori variance factor (the
+    weighted squared residuals per degree of freedom: about 1 when ``pixel_std`` is right)."""
+    fx, fy, cx, cy = camera_matrix[0, 0], camera_matrix[1, 1], camera_matrix[0, 2], camera_matrix[1, 2]
+    identity = np.broadcast_to(np.eye(3), (len(points_world), 3, 3))
+    hessian = np.eye(6)
+    variance_factor = 1.0
+    for _ in range(iterations):
+        p = points_world @ pose[:3, :3].T + pose[:3, 3]
+        z = np.maximum(p[:, 2], 1e-6)
+        residual = np.stack([fx * p[:, 0] / z + cx - pixels[:, 0], fy * p[:, 1] / z + cy - pixels[:, 1]], axis=1)
+        norm = np.linalg.norm(residual, axis=1)
+        weight = np.where(norm <= huber_px, 1.0, huber_px / np.maximum(norm, 1e-12)) / pixel_std**2
+        weight = weight * (p[:, 2] > 1e-6)
+        d_proj = np.zeros((len(p), 2, 3))
+        d_proj[:, 0, 0], d_proj[:, 0, 2] = fx / z, -fx * p[:, 0] / z**2
+        d_proj[:, 1, 1], d_proj[:, 1, 2] = fy / z, -fy * p[:, 1] / z**2
+        jacobian = d_proj @ np.concatenate([identity, -_skew_rows(p)], axis=2)  # (N, 2, 6)
+        weighted = jacobian * weight[:, None, None]
+        hessian = np.einsum("nki,nkj->ij", weighted, jacobian)
+        gradient = np.einsum("nki,nk->i", weighted, residual)
+        variance_factor = float(np.sum(weight * norm**2) / max(2 * len(p) - 6, 1))
+        system = hessian
+        if prior is not None:
+            prior_inverse, information = prior
+            system = hessian + information
+            gradient = gradient + information @ _pose_error(pose, prior_inverse)
+        step = -np.linalg.lstsq(system, gradient, rcond=None)[0]
+        update = np.eye(4)
+        update[:3, :3] = so3_exp(step[3:])
+        update[:3, 3] = step[:3]
+        pose = update @ pose
+        if np.linalg.norm(step) < 1e-10:
+            break
+    return pose, hessian, variance_factor
+
+
+def refine_pose_with_prior(
+    T_camera_world: NDArray[np.float64],
+    points_world: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    camera_matrix: NDArray[np.float64],
+    prior_camera_world: NDArray[np.float64],
+    prior_std: tuple[float, float],
+    *,
+    pixel_std: float = 1.0,
+    huber_px: float = 2.0,
+    iterations: int = 6,
+    gate: float = 1000.0,
+) -> tuple[NDArray[np.float64], bool]:
+    """Refined ``T_camera_world`` (see the module docstring) and whether the prior was used.
+
+    ``prior_std`` is (metres, radians) per axis. The prior is dropped when the reprojection-only estimate and
+    the prediction disagree grossly (squared Mahalanobis distance over their combined uncertainty above
+    ``gate``): then the prediction is what is wrong (a collision, a slip, a hand-held jerk). The gate is far
+    above χ²₆'s 22.5 because the reprojection covariance ignores the map points' own errors, which are
+    correlated: on the simulated plant 5 % of well-tracked frames exceed 100 although fusing them is right.
+    """
+    information = np.diag([1.0 / prior_std[0] ** 2] * 3 + [1.0 / prior_std[1] ** 2] * 3)
+    prior_inverse = np.linalg.inv(prior_camera_world)
+    args = (points_world, pixels, camera_matrix)
+    alone, hessian, variance_factor = _gauss_newton(
+        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations
+    )
+    # The points' real scatter (depth quantisation, keypoint noise) sets the weight of the reprojection term:
+    # scale pixel_std by the observed residuals, never below the nominal value.
+    pixel_std = pixel_std * math.sqrt(max(variance_factor, 1.0))
+    innovation = _pose_error(alone, prior_inverse)
+    combined = np.linalg.pinv(hessian) * max(variance_factor, 1.0) + np.linalg.inv(information)
+    if float(innovation @ np.linalg.solve(combined, innovation)) > gate:
+        return alone, False
+    fused, _, _ = _gauss_newton(alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations)
+    return fused, True
