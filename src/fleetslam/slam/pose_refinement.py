@@ -104,8 +104,8 @@ def refine_pose_with_prior(
     above χ²₆'s 22.5 because the reprojection covariance ignores the map points' own errors, which are
     correlated: on the simulated plant 5 % of well-tracked frames exceed 100 although fusing them is right.
     """
-    information = np.diag([1.0 / prior_std[0] ** 2] * 3 + [1.0 / prior_std[1] ** 2] * 3)
-    prior_inverse = np.linalg.inv(prior_camera_world)
+    information: NDArray[np.float64] = np.diag([1.0 / prior_std[0] ** 2] * 3 + [1.0 / prior_std[1] ** 2] * 3)
+    prior_inverse: NDArray[np.float64] = np.linalg.inv(np.asarray(prior_camera_world, np.float64))
     args = (points_world, pixels, camera_matrix)
     alone, hessian, variance_factor = _gauss_newton(
         np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations
