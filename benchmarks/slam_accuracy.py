@@ -108,7 +108,7 @@ def peer_open3d(source: RGBDSource, max_frames: int | None) -> dict[str, Any] | 
     return {"trajectory": Trajectory.from_lists(stamps, poses), "ms": np.asarray(times[1:] or [0.0])}
 
 
-def run_sequence(name: str, path: Path, max_frames: int | None, peer: bool) -> dict[str, Any]:
+def run_sequence(name: str, path: Path, max_frames: int | None, peer: bool, plots: Path | None) -> dict[str, Any]:
     import cv2
 
     cv2.setNumThreads(1)
@@ -137,6 +137,7 @@ def run_sequence(name: str, path: Path, max_frames: int | None, peer: bool) -> d
         record["ate_rmse_cm"] = round(ape(gt, result.trajectory).rmse * 100, 3)
         record["ate_rmse_cm_odometry_only"] = round(ape(gt, result.odometry).rmse * 100, 3)
         record["rpe_1f_rmse_cm"] = round(rpe(gt, result.trajectory).rmse * 100, 3)
+    peer_result = None
     if peer:
         peer_result = peer_open3d(open_source(path), max_frames)
         if peer_result is None:
@@ -150,6 +151,16 @@ def run_sequence(name: str, path: Path, max_frames: int | None, peer: bool) -> d
                 peer_ate = ape(gt, peer_result["trajectory"]).rmse * 100
                 record["peer_ate_rmse_cm"] = round(peer_ate, 3)
                 record["ate_ratio_peer_over_ours"] = round(peer_ate / max(record["ate_rmse_cm"], 1e-9), 2)
+    if gt is not None and plots is not None:
+        from fleetslam.eval import plot_ape
+
+        plots.mkdir(parents=True, exist_ok=True)
+        others = {"odometry only": result.odometry}
+        if peer and peer_result is not None:
+            others["Open3D RGB-D odometry"] = peer_result["trajectory"]
+        png = plots / f"slam_{name}.png"
+        plot_ape(gt, result.trajectory, str(png), others=others, title=f"{name}: fleetslam vs ground truth")
+        record["plot"] = str(png)
     record["targets"] = {"ate_rmse_cm_max": 1.0, "odometry_ms_median_max": 20.0}
     return record
 
@@ -164,6 +175,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", choices=["loop", "survey", "tum"], help="run one kind of sequence")
     parser.add_argument("--no-peer", action="store_true", help="skip the Open3D peer")
     parser.add_argument("--max-frames", type=int, help="process at most N frames per sequence")
+    parser.add_argument(
+        "--plots", type=Path, default=Path("results/benchmarks"), help="folder for the trajectory plots (PNG)"
+    )
     args = parser.parse_args(argv)
     sequences: list[tuple[str, Path]] = []
     for name, (route, camera_hz) in SIM_SEQUENCES.items():
@@ -175,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
             if (folder / "rgb.txt").is_file():
                 sequences.append((folder.name, folder))
     for name, path in sequences:
-        print(json.dumps(run_sequence(name, path, args.max_frames, not args.no_peer)), flush=True)
+        print(json.dumps(run_sequence(name, path, args.max_frames, not args.no_peer, args.plots)), flush=True)
     return 0
 
 

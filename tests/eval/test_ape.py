@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -44,3 +46,21 @@ def test_association_tolerance_and_rpe() -> None:
     offsets[10:, 0] = 0.05
     r = rpe(gt, _line(20, offsets), delta=1, delta_unit="f")
     assert r.max == pytest.approx(0.05)
+
+
+def test_plot_shows_every_estimate_with_its_error(tmp_path: Path) -> None:
+    import matplotlib.image
+
+    from fleetslam.eval import plot_ape
+
+    gt = _line(60)
+    offsets = np.zeros((60, 3))
+    offsets[30:, 1] = 0.05  # a jump half way: alignment cannot remove it
+    shifted = _line(60, offsets)
+    png = tmp_path / "ape.png"
+    plot_ape(gt, gt, str(png), others={"shifted": shifted}, title="two estimates")
+    image = matplotlib.image.imread(png)
+    assert image.shape[0] > 300 and image.shape[1] > 2 * image.shape[0] * 0.9  # two panels side by side
+    # Blue (estimate) and red (the other) curves are both drawn.
+    rgb = image[..., :3]
+    assert np.any((rgb[..., 2] > 0.8) & (rgb[..., 0] < 0.2)) and np.any((rgb[..., 0] > 0.8) & (rgb[..., 2] < 0.2))

@@ -127,9 +127,20 @@ def rpe(
 
 
 def plot_ape(
-    gt: Trajectory, est: Trajectory, path: str, *, align: bool = True, scale: bool = False, max_diff: float = 0.02
+    gt: Trajectory,
+    est: Trajectory,
+    path: str,
+    *,
+    align: bool = True,
+    scale: bool = False,
+    max_diff: float = 0.02,
+    others: dict[str, Trajectory] | None = None,
+    title: str = "",
 ) -> None:
-    """PNG of both trajectories (top view, x-y) after association and alignment."""
+    """PNG of the trajectories after association and alignment: top view (x-y) and the error over time.
+
+    ``others`` adds more estimates by label (e.g. odometry only, a peer system), each aligned on its own.
+    """
     try:
         import matplotlib
 
@@ -137,17 +148,33 @@ def plot_ape(
         import matplotlib.pyplot as plt
     except ImportError as err:
         raise MissingExtraError("matplotlib", "eval") from err
-    ref, est_evo = _associate(gt, est, max_diff)
-    if align or scale:
-        est_evo.align(ref, correct_scale=scale)
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(ref.positions_xyz[:, 0], ref.positions_xyz[:, 1], "k--", label="ground truth")
-    ax.plot(est_evo.positions_xyz[:, 0], est_evo.positions_xyz[:, 1], "b-", label="estimate")
-    distances = np.linalg.norm(ref.positions_xyz - est_evo.positions_xyz, axis=1)
-    ax.set_title(f"APE RMSE {np.sqrt(np.mean(distances**2)) * 100:.2f} cm")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.axis("equal")
-    ax.legend()
+    fig, (top, errors) = plt.subplots(1, 2, figsize=(12, 5.5))
+    drawn_truth = False
+    styles = ["b-", "r-", "g-", "m-", "c-"]
+    for k, (label, trajectory) in enumerate([("estimate", est), *(others or {}).items()]):
+        ref, est_evo = _associate(gt, trajectory, max_diff)
+        if align or scale:
+            est_evo.align(ref, correct_scale=scale)
+        if not drawn_truth:
+            top.plot(ref.positions_xyz[:, 0], ref.positions_xyz[:, 1], "k--", label="ground truth")
+            drawn_truth = True
+        distances = np.linalg.norm(ref.positions_xyz - est_evo.positions_xyz, axis=1)
+        rmse_cm = np.sqrt(np.mean(distances**2)) * 100
+        style = styles[k % len(styles)]
+        top.plot(
+            est_evo.positions_xyz[:, 0], est_evo.positions_xyz[:, 1], style, lw=1, label=f"{label} ({rmse_cm:.2f} cm)"
+        )
+        errors.plot(ref.timestamps - ref.timestamps[0], distances * 100, style, lw=1, label=label)
+    top.set_title(title or "APE (RMSE after alignment)")
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.axis("equal")
+    top.legend(fontsize=8)
+    errors.set_xlabel("time [s]")
+    errors.set_ylabel("position error [cm]")
+    errors.set_title("error after alignment")
+    errors.grid(alpha=0.3)
+    errors.legend(fontsize=8)
+    fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
