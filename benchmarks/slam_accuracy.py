@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from fleetslam.config import load_config
 from fleetslam.datasets import RGBDSource, open_source
 from fleetslam.eval import ape, rpe
 from fleetslam.slam.config import SlamConfig
@@ -114,7 +115,14 @@ def run_sequence(name: str, path: Path, max_frames: int | None, peer: bool, plot
     cv2.setNumThreads(1)
     source = open_source(path)
     gt = source.groundtruth()
-    pipeline = SlamPipeline(SlamConfig(), source)
+    config = SlamConfig()
+    if not name.startswith("sim_"):
+        # TUM's sequences are mostly hand-held: the motion prior must allow a hand's accelerations.
+        config = load_config(
+            SlamConfig,
+            overrides=["odometry.motion_prior_acceleration=10", "odometry.motion_prior_angular_acceleration=10"],
+        )
+    pipeline = SlamPipeline(config, source)
     t0 = time.perf_counter()
     result = pipeline.run(max_frames)
     wall = time.perf_counter() - t0

@@ -78,5 +78,11 @@ def test_simulated_robot_is_tracked_and_mapped(router_endpoint: str, make_contex
     shift = map_to_odom[-1].transform.translation
     assert np.linalg.norm([shift.x, shift.y]) < 2.0
     assert graphs and len(graphs[-1].poses) >= 2 and len(graphs[-1].constraints) >= 1
+    # The graph carries each keyframe's full stamp (the camera's, to the nanosecond).
+    keyframe_stamps = {int(k.id): (k.header.stamp.sec, k.header.stamp.nanosec) for k in keyframes}
+    graph = graphs[-1]
+    shared = [(int(i), (t.sec, t.nanosec)) for i, t in zip(graph.keyframe_ids, graph.stamps, strict=True)]
+    assert any(i in keyframe_stamps for i, _ in shared)
+    assert all(keyframe_stamps[i] == stamp for i, stamp in shared if i in keyframe_stamps)
     xyz = np.frombuffer(bytes(clouds[-1].data), np.float32).reshape(-1, 3)
     assert len(xyz) > 50  # occupied voxels of the hall seen by the camera

@@ -28,7 +28,7 @@ from fleetslam.datasets.base import Intrinsics, RGBDFrame
 from fleetslam.geometry import invert, pose_to_quat
 from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.conversions import pose_matrix, transform_matrix, transform_msg
-from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp
+from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp, stamp_from_ns
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
 from fleetslam.slam.pose_buffer import PoseBuffer
@@ -292,12 +292,7 @@ class SlamNode:
              "constraints": constraints, "optimized": optimized},
         )  # fmt: skip
         graph.header = header(self.config.map_frame, stamp_ns)
-        graph.stamps = [
-            message_from_dict(
-                "builtin_interfaces/msg/Time", {"sec": int(self.pipeline.keyframe_stamps[i]), "nanosec": 0}
-            )
-            for i in ids
-        ]
+        graph.stamps = [stamp_from_ns(round(self.pipeline.keyframe_stamps[i] * 1e9)) for i in ids]
         self.graph_pub.publish(graph)
         path = message_from_dict("nav_msgs/msg/Path", {"poses": [{"pose": _pose_dict(poses[i])} for i in ids]})
         path.header = graph.header
