@@ -17,6 +17,8 @@ closure all poses are re-sent, never points). Services: ``slam/save_map`` (SaveM
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +83,15 @@ def image_to_array(msg: Any) -> np.ndarray:
     raise ValueError(f"unsupported image encoding {enc!r}")
 
 
+def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
+    """The converted pose, or None when the message's is not finite or its quaternion is zero."""
+    try:
+        pose = convert()
+    except ValueError:
+        return None
+    return pose if np.isfinite(pose).all() else None
+
+
 def _pose_dict(pose: np.ndarray) -> dict[str, Any]:
     t, q = pose_to_quat(pose)
     return {
@@ -106,6 +117,8 @@ class SlamNode:
         self.base_camera: np.ndarray | None = None
         """``T_base_camera`` from tf_static, once received."""
         self.priors_used = 0
+        self.bad_inputs = 0
+        """Odometry / tf_static messages ignored because their pose was not finite or not a rotation."""
         qos = QoSProfile(depth=5)
         self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "slam/odom", qos)
         self.path_pub = node.create_publisher("nav_msgs/msg/Path", "path", QoSProfile(depth=1))
@@ -149,14 +162,26 @@ class SlamNode:
         self.camera_info = msg
 
     def on_odom(self, msg: Any) -> None:
-        self.wheel_poses.add(ns_from_stamp(msg.header.stamp) / 1e9, pose_matrix(msg.pose.pose))
+        pose = _valid_pose(lambda: pose_matrix(msg.pose.pose))
+        if pose is None:
+            self.bad_inputs += 1
+            if self.bad_inputs in (1, 10, 100) or self.bad_inputs % 1000 == 0:
+                log.warning("%s: odom pose is not finite or not a rotation (%d such messages ignored)",
+                            self.agent, self.bad_inputs)  # fmt: skip
+            return
+        self.wheel_poses.add(ns_from_stamp(msg.header.stamp) / 1e9, pose)
 
     def on_tf_static(self, msg: Any) -> None:
         for transform in msg.transforms:
             parent = transform.header.frame_id.split("/")[-1]
             child = transform.child_frame_id.split("/")[-1]
             if parent == self.config.base_frame and child == self.config.camera_frame:
-                self.base_camera = transform_matrix(transform.transform)
+                extrinsic = _valid_pose(partial(transform_matrix, transform.transform))
+                if extrinsic is not None:
+                    self.base_camera = extrinsic
+                else:
+                    self.bad_inputs += 1
+                    log.warning("%s: tf_static %s -> %s is not a valid transform; ignored", self.agent, parent, child)
 
     def wheel_prior(self, stamp: float) -> np.ndarray | None:
         """``T_odom_camera`` at ``stamp`` from the wheel odometry, when both it and the extrinsic are known."""
