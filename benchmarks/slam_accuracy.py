@@ -3,10 +3,12 @@
 Sequences: the simulator's 640×480 ``loop_revisit`` route at 14 Hz, about 600 frames (the loop, then its
 first metres again so that the camera sees the start from the start's viewpoint), and the ``survey`` route
 at 15 Hz, exported into a cache folder when absent (``FLEETSLAM_BENCH_CACHE``, default ``~/.cache/fleetslam/bench``),
-plus every TUM sequence folder under ``FLEETSLAM_TUM_DIR`` when set. Figures: ATE RMSE (SE(3)-aligned, TUM
-conventions), RPE over 1 frame, loop closures, odometry median/p95 ms per frame on ONE core
-(``cv2.setNumThreads(1)``), and the same for Open3D (``compute_rgbd_odometry``, frame to frame, hybrid
-term) → ratios. Targets: ATE RMSE ≤ 1.0 cm on the loop with its loop closure detected; odometry median
+plus every TUM sequence folder under ``FLEETSLAM_TUM_DIR`` when set. The simulated sequences run with the
+defaults, as on the robot: the exports carry the wheel odometry (each frame's prior) and the camera mounting
+(planar motion); TUM's hand-held sequences get a hand-held motion prior and no planar constraint.
+Figures: ATE RMSE (SE(3)-aligned, TUM conventions), RPE over 1 frame, loop closures, odometry median/p95 ms
+per frame on ONE core (``cv2.setNumThreads(1)``), and the same for Open3D (``compute_rgbd_odometry``, frame to
+frame, hybrid term) → ratios. Targets: ATE RMSE ≤ 1.0 cm on the loop with its loop closure detected; odometry median
 ≤ 20 ms per 640×480 frame.
 
 Usage: python benchmarks/slam_accuracy.py [--frames N] [--only loop|survey|tum] [--no-peer]
@@ -42,7 +44,8 @@ SIM_SEQUENCES = {"loop": ("loop_revisit", 14.0), "survey": ("survey", 15.0)}
 
 def sim_sequence(route: str, frames: int | None, camera_hz: float) -> Path:
     """Export (once) ``frames`` frames of a route, or the whole route when None."""
-    out = cache_dir() / f"sim_{route}_{camera_hz:g}hz_{frames or 'full'}"
+    # v2: exports carry the wheel odometry (odometry.txt, the frames' prior) and the camera mounting.
+    out = cache_dir() / f"sim_{route}_{camera_hz:g}hz_{frames or 'full'}_v2"
     if not (out / "groundtruth.txt").is_file():
         from fleetslam.sim.export import export_tum
 

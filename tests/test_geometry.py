@@ -59,3 +59,16 @@ def test_optical_frame_axes() -> None:
     np.testing.assert_allclose(r @ [0, 0, 1], [1, 0, 0])
     np.testing.assert_allclose(r @ [1, 0, 0], [0, -1, 0])
     np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, -1])
+
+
+def test_planar_camera_pose_keeps_the_base_on_the_floor() -> None:
+    base_camera = g.make_pose(g.so3_exp([0.0, 0.1, 0.0]) @ g.T_BODY_OPTICAL[:3, :3], [0.1, 0.0, 0.5])
+    planar = g.invert(base_camera) @ g.pose_from_planar(1.0, -0.5, 0.7) @ base_camera
+    # An exactly planar camera motion is kept as it is.
+    np.testing.assert_allclose(g.planar_camera_pose(planar, base_camera), planar, atol=1e-12)
+    # Height, roll and pitch errors of the base are removed; x, y and yaw stay.
+    lifted = g.invert(base_camera) @ g.pose_from_xyz_rpy(1.0, -0.5, 0.03, 0.01, -0.02, 0.7) @ base_camera
+    projected = g.planar_camera_pose(lifted, base_camera)
+    base = base_camera @ projected @ g.invert(base_camera)
+    assert abs(base[2, 3]) < 1e-12 and abs(base[2, 2] - 1.0) < 1e-12
+    assert abs(g.yaw_of(base) - 0.7) < 1e-3 and np.allclose(base[:2, 3], [1.0, -0.5])

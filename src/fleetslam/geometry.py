@@ -130,3 +130,13 @@ def normalize_angle(angle: float) -> float:
 
 # Optical frame (x right, y down, z forward) relative to a body frame (x forward, y left, z up).
 T_BODY_OPTICAL: Matrix4 = make_pose(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))
+
+
+def planar_camera_pose(T_camera0_camera: ArrayLike, T_base_camera: ArrayLike) -> Matrix4:
+    """The camera pose (relative to an earlier camera pose) closest to one a ground robot can reach: the base
+    under the camera keeps its height, roll and pitch, only x, y and yaw change (RTAB-Map's Reg/Force3DoF)."""
+    base_camera = np.asarray(T_base_camera, dtype=np.float64)
+    base_motion = base_camera @ np.asarray(T_camera0_camera, dtype=np.float64) @ invert(base_camera)
+    yaw = float(np.arctan2(base_motion[1, 0], base_motion[0, 0]))
+    planar = pose_from_planar(float(base_motion[0, 3]), float(base_motion[1, 3]), yaw)
+    return invert(base_camera) @ planar @ base_camera

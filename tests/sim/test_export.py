@@ -71,3 +71,22 @@ def test_export_round_trip(tmp_path: Path) -> None:
         floor = points[points[:, 2] < 0.15]
         assert len(floor) > 200, stamp
         assert abs(float(np.median(floor[:, 2]))) < 0.01
+
+    # Wheel odometry and the camera mounting: the odometry's camera poses follow the truth over this short
+    # drive (wheel slip aside), and the mounting maps the optical frame onto a base on the floor plane.
+    from fleetslam.datasets import open_source
+    from fleetslam.geometry import invert
+
+    odometry = read_tum(out / "odometry.txt")
+    np.testing.assert_allclose(odometry.stamps, gt.stamps, atol=1e-6)
+    base_camera = np.loadtxt(out / "base_camera.txt")
+    moved_truth = invert(gt.poses[0]) @ gt.poses[-1]
+    moved_wheels = invert(odometry.poses[0]) @ odometry.poses[-1]
+    distance = np.linalg.norm(moved_truth[:3, 3])
+    assert np.linalg.norm(moved_truth[:3, 3] - moved_wheels[:3, 3]) < 0.05 * distance
+    bases = [pose @ invert(base_camera) for pose in gt.poses]
+    assert max(abs(b[2, 3] - bases[0][2, 3]) for b in bases) < 0.002  # the base stays at one height
+    source = open_source(out)
+    np.testing.assert_allclose(source.base_camera, base_camera)
+    first = next(iter(source))
+    assert first.prior is not None

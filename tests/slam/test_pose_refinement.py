@@ -44,3 +44,22 @@ def test_prior_is_dropped_when_the_points_clearly_contradict_it() -> None:
     refined, used = refine_pose_with_prior(truth, points, pixels, K, stale_prediction, (0.002, 0.001))
     assert not used
     assert np.linalg.norm(refined[:3, 3] - truth[:3, 3]) < 0.002
+
+
+def test_planar_basis_moves_only_x_y_and_yaw_of_the_base() -> None:
+    from fleetslam.geometry import T_BODY_OPTICAL, make_pose, pose_from_planar, pose_from_xyz_rpy
+    from fleetslam.slam.pose_refinement import planar_basis
+
+    rng = np.random.default_rng(2)
+    tilt = pose_from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.09, 0.0)
+    base_camera = make_pose(tilt[:3, :3] @ T_BODY_OPTICAL[:3, :3], [0.1, 0.0, 0.5])
+    truth_base = pose_from_planar(0.5, 0.2, 0.3)
+    truth = invert(truth_base @ base_camera)  # T_camera_world
+    points = rng.uniform([1.0, -3.0, 0.0], [7.0, 3.0, 2.0], (400, 3))
+    points = points[(points @ truth[:3, :3].T + truth[:3, 3])[:, 2] > 0.5]
+    pixels = observe(rng, truth, points, 0.3)
+    start = invert(pose_from_planar(0.45, 0.25, 0.28) @ base_camera)
+    refined, _ = refine_pose_with_prior(start, points, pixels, K, start, (1e6, 1e6), basis=planar_basis(base_camera))
+    base = invert(refined) @ invert(base_camera)  # T_world_base
+    assert abs(base[2, 3]) < 1e-9 and abs(base[2, 2] - 1.0) < 1e-9  # still on the floor, level
+    np.testing.assert_allclose(base[:2, 3], truth_base[:2, 3], atol=0.002)

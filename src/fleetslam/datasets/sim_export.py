@@ -2,8 +2,9 @@
 
 Same layout as a TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``) plus the camera model in
 ``intrinsics.yaml`` (``fx fy cx cy width height`` and optionally ``depth_scale``) or ``camera.txt``
-(``fx fy cx cy [width height]``), and optionally wheel odometry in ``odometry.txt`` (TUM format, camera
-poses in the odometry frame) which becomes each frame's ``prior``.
+(``fx fy cx cy [width height]``), optionally wheel odometry in ``odometry.txt`` (TUM format, camera
+poses in the odometry frame) which becomes each frame's ``prior``, and optionally the camera's mounting on the
+robot in ``base_camera.txt`` (4×4 T_base_link_optical) for planar-motion constraints.
 """
 
 from __future__ import annotations
@@ -36,6 +37,15 @@ class SimExportSource(TumSource):
         self.max_difference = max_difference
         odometry_path = root / "odometry.txt"
         self.odometry = read_tum(odometry_path) if odometry_path.is_file() else None
+        extrinsics_path = root / "base_camera.txt"
+        if extrinsics_path.is_file():
+            try:
+                extrinsics = np.loadtxt(extrinsics_path, dtype=np.float64)
+            except ValueError as err:
+                raise DatasetError(f"{extrinsics_path}: not a 4×4 matrix of numbers: {err}") from err
+            if extrinsics.shape != (4, 4) or not np.isfinite(extrinsics).all():
+                raise DatasetError(f"{extrinsics_path}: expected a finite 4×4 matrix, got shape {extrinsics.shape}")
+            self.base_camera = extrinsics
 
     @staticmethod
     def _read_camera(root: Path) -> tuple[Intrinsics, float]:

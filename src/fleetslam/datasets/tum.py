@@ -176,6 +176,9 @@ def load_depth(path: Path, depth_scale: float) -> NDArray[np.float32]:
 class TumSource:
     """A TUM RGB-D folder; images are read while iterating."""
 
+    base_camera: NDArray[np.float64] | None = None
+    """T_base_camera when the camera's mounting on a ground robot is known (simulator exports), else None."""
+
     def __init__(
         self,
         root: Path,

@@ -3,8 +3,9 @@
 The robot follows a named route with the autopilot (pure pursuit → base controller → wheel torques →
 physics); frames are rendered at ``camera_hz`` in simulated time. Written files: ``rgb/*.png``,
 ``depth/*.png`` (uint16, metres × 5000, 0 = invalid), ``rgb.txt``, ``depth.txt``, ``associations.txt``,
-``groundtruth.txt`` (T_world_optical at every frame), ``camera.txt``, ``intrinsics.yaml`` and the
-``sim_config.yaml`` used.
+``groundtruth.txt`` (T_world_optical at every frame), ``odometry.txt`` (the camera pose from the wheel
+odometry, T_odom_optical, at every frame), ``base_camera.txt`` (T_base_link_optical, 4×4), ``camera.txt``,
+``intrinsics.yaml`` and the ``sim_config.yaml`` used.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from numpy.typing import NDArray
 
 from fleetslam.config import dump_config
 from fleetslam.errors import DatasetError, MissingExtraError, SimulationError
+from fleetslam.geometry import pose_from_planar
 from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.sim.camera import CameraIntrinsics
 from fleetslam.sim.config import SimConfig
@@ -122,12 +124,14 @@ def export_tum(
     frame_period = 1.0 / camera_hz
     stamps: list[float] = []
     poses: list[NDArray[np.float64]] = []
+    wheel_poses: list[NDArray[np.float64]] = []
     rgb_lines: list[str] = []
     depth_lines: list[str] = []
     assoc_lines: list[str] = []
     completed = False
     with Plant(cfg, [placement]) as plant:
         intrinsics = plant.intrinsics_at(w, h)
+        base_camera = plant.camera_extrinsics(robot)
         bar = tqdm(total=frames, unit="frame", desc=f"export {route}", disable=not progress)
         plant.step(settle)  # let the robot settle on its wheels before the first frame
         t0 = plant.sim_time
@@ -151,6 +155,8 @@ def export_tum(
             assoc_lines.append(f"{stamp} rgb/{name}.png {stamp} depth/{name}.png")
             stamps.append(frame.stamp)
             poses.append(frame.T_world_camera)
+            odom = plant.controller(robot).odometry
+            wheel_poses.append(pose_from_planar(odom.x, odom.y, odom.theta) @ base_camera)
             bar.update(1)
             k += 1
             if frames is None and (completed or plant.sim_time >= max_duration):
@@ -167,6 +173,8 @@ def export_tum(
     (out / "associations.txt").write_text("\n".join(assoc_lines) + "\n", encoding="utf-8")
     groundtruth = Trajectory.from_lists(stamps, poses)
     write_tum(out / "groundtruth.txt", groundtruth)
+    write_tum(out / "odometry.txt", Trajectory.from_lists(stamps, wheel_poses))
+    np.savetxt(out / "base_camera.txt", base_camera, fmt="%.9f", header="T_base_link_camera_optical (4x4)")
     write_camera_files(out, intrinsics)
     (out / "sim_config.yaml").write_text(config_text, encoding="utf-8")
     duration = stamps[-1] - stamps[0] if stamps else 0.0

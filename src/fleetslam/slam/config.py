@@ -99,6 +99,11 @@ class OdometryConfig(ConfigModel):
     motion_prior_gate: float = Field(default=1000.0, gt=0.0)
     """The prior is dropped for a frame whose PnP estimate and prediction disagree by more than this squared
     Mahalanobis distance (a collision or a slip, not noise)."""
+    planar_motion: bool = True
+    """Ground robot: the camera's base stays on the floor plane (height, roll and pitch of the first frame), only
+    x, y and yaw change: the pose refinement solves for those three, loop transforms are projected (RTAB-Map
+    Reg/Force3DoF). Needs the camera's mounting T_base_camera (the node takes it from tf_static, simulator
+    exports from base_camera.txt); without it (TUM folders, hand-held cameras) it does nothing."""
     use_prior: bool = True
     """Use a per-frame prior pose (wheel odometry) as motion prediction and as fallback when lost."""
 

@@ -157,7 +157,7 @@ class SlamNode:
         if self.pipeline is None:
             k = msg.k
             intrinsics = Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height))
-            self.pipeline = SlamPipeline(self.config.slam, intrinsics=intrinsics)
+            self.pipeline = SlamPipeline(self.config.slam, intrinsics=intrinsics, base_camera=self.base_camera)
             log.info("%s: SLAM started with fx=%.1f at %dx%d", self.agent, intrinsics.fx, msg.width, msg.height)
         self.camera_info = msg
 
@@ -179,6 +179,8 @@ class SlamNode:
                 extrinsic = _valid_pose(partial(transform_matrix, transform.transform))
                 if extrinsic is not None:
                     self.base_camera = extrinsic
+                    if self.pipeline is not None:
+                        self.pipeline.odometry.base_camera = extrinsic
                 else:
                     self.bad_inputs += 1
                     log.warning("%s: tf_static %s -> %s is not a valid transform; ignored", self.agent, parent, child)

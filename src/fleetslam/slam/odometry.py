@@ -20,11 +20,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics
-from fleetslam.geometry import invert, rotation_angle
+from fleetslam.geometry import invert, planar_camera_pose, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.matching import match_by_projection
-from fleetslam.slam.pose_refinement import refine_pose_with_prior
+from fleetslam.slam.pose_refinement import planar_basis, refine_pose_with_prior
 
 logger = logging.getLogger(__name__)
 
@@ -114,7 +114,14 @@ class LocalMap:
 class VisualOdometry:
     """RGB-D frame-to-local-map odometry. ``track`` is called once per frame, in order."""
 
-    def __init__(self, config: OdometryConfig, intrinsics: Intrinsics, features: FeatureConfig | None = None) -> None:
+    def __init__(
+        self,
+        config: OdometryConfig,
+        intrinsics: Intrinsics,
+        features: FeatureConfig | None = None,
+        base_camera: NDArray[np.float64] | None = None,
+    ) -> None:
+        """``base_camera`` (T_base_camera) enables ``config.planar_motion``; it may also be set later."""
         cv2 = import_cv2()
         self.config = config
         self.intrinsics = intrinsics
@@ -132,6 +139,7 @@ class VisualOdometry:
         self._keyframe_pose: NDArray[np.float64] | None = None
         self._keyframe_features = 0
         self.frames = 0
+        self.base_camera = base_camera
         self._last_stamp: float | None = None
         self._frame_interval = 1.0 / 30.0
 
@@ -224,10 +232,17 @@ class VisualOdometry:
             t0,
         )
 
+    def constrain(self, pose: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The pose projected onto the robot's plane of motion when ``planar_motion`` is on (and the mounting
+        known); otherwise unchanged."""
+        if not self.config.planar_motion or self.base_camera is None:
+            return pose
+        return planar_camera_pose(pose, self.base_camera)
+
     def relocalize(self, result: OdometryResult, pose: NDArray[np.float64]) -> OdometryResult:
         """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
         from it: the local map is re-seeded with this frame's points at the corrected pose."""
-        self.pose = np.asarray(pose, np.float64).copy()
+        self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
         self._velocity = np.eye(4)
         self.local_map.clear()
         world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
@@ -309,8 +324,13 @@ class VisualOdometry:
             return invert(_from_rvec_tvec(rvec, tvec)), index
         # How far the motion can depart from the prediction within one frame interval: ½·a·Δt².
         half_dt2 = 0.5 * self._frame_interval**2
+        start = _from_rvec_tvec(rvec, tvec)
+        basis = None
+        if self.config.planar_motion and self.base_camera is not None:
+            start = invert(self.constrain(invert(start)))
+            basis = planar_basis(self.base_camera)
         T_cw, _ = refine_pose_with_prior(
-            _from_rvec_tvec(rvec, tvec),
+            start,
             object_points[index],
             image_points[index],
             self._K,
@@ -321,6 +341,7 @@ class VisualOdometry:
             ),
             huber_px=self.config.pnp_reprojection_error,
             gate=self.config.motion_prior_gate,
+            basis=basis,
         )
         return invert(T_cw), index
 
@@ -358,6 +379,7 @@ class VisualOdometry:
         t0: float,
     ) -> OdometryResult:
         t_update = time.perf_counter()
+        pose = self.constrain(pose)
         self._velocity = invert(self.pose) @ pose
         self.pose = pose
         self._previous_prior = prior
@@ -388,6 +410,11 @@ class VisualOdometry:
         )
 
 
-def make_odometry(config: OdometryConfig, features: FeatureConfig, intrinsics: Intrinsics) -> VisualOdometry:
+def make_odometry(
+    config: OdometryConfig,
+    features: FeatureConfig,
+    intrinsics: Intrinsics,
+    base_camera: NDArray[np.float64] | None = None,
+) -> VisualOdometry:
     """Build the odometry from configuration."""
-    return VisualOdometry(config, intrinsics, features)
+    return VisualOdometry(config, intrinsics, features, base_camera)

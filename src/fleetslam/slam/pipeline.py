@@ -63,14 +63,24 @@ class StepResult:
 class SlamPipeline:
     """Odometry + loop closure + pose graph over a frame stream (pure; :func:`run_offline` writes files)."""
 
-    def __init__(self, config: SlamConfig, source: RGBDSource | None = None, *, intrinsics: Any = None) -> None:
-        """``source`` for offline runs; a live node passes only the camera ``intrinsics`` and calls :meth:`step`."""
+    def __init__(
+        self,
+        config: SlamConfig,
+        source: RGBDSource | None = None,
+        *,
+        intrinsics: Any = None,
+        base_camera: NDArray[np.float64] | None = None,
+    ) -> None:
+        """``source`` for offline runs; a live node passes only the camera ``intrinsics`` and calls :meth:`step`.
+        ``base_camera`` (T_base_camera; default: the source's, if it knows it) enables planar motion."""
         if source is None and intrinsics is None:
             raise ValueError("SlamPipeline needs a source or the camera intrinsics")
         self.config = config
         self.source = source
         self.intrinsics = intrinsics if intrinsics is not None else source.intrinsics  # type: ignore[union-attr]
-        self.odometry: VisualOdometry = make_odometry(config.odometry, config.features, self.intrinsics)
+        if base_camera is None and source is not None:
+            base_camera = getattr(source, "base_camera", None)
+        self.odometry: VisualOdometry = make_odometry(config.odometry, config.features, self.intrinsics, base_camera)
         self.graph: PoseGraph = make_pose_graph(config.backend)
         b = config.backend
         self.odometry_information = information_from_std(
@@ -241,6 +251,8 @@ class SlamPipeline:
             info = self.odometry_information * (0.01 if result.lost else 1.0)
             self.graph.add_odometry(last_kf, node, odometry_transform, info)
         transform = hypothesis.transform if hypothesis is not None and hypothesis.accepted else None
+        if transform is not None:
+            transform = self.odometry.constrain(transform)
         if hypothesis is not None and transform is not None and hypothesis.match_id is not None:
             pair = (int(hypothesis.match_id), node)
             if self.graph.add_loop(pair[0], node, transform, self.loop_information):

@@ -45,6 +45,7 @@ def _gauss_newton(
     pixel_std: float,
     huber_px: float,
     iterations: int,
+    basis: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Minimise the robust reprojection error (plus the prior ``(T_prior⁻¹, information)`` if given); returns
     the pose, the reprojection term's Gauss–Newton Hessian at it and the a-posteriori variance factor (the
@@ -64,6 +65,8 @@ def _gauss_newton(
         d_proj[:, 0, 0], d_proj[:, 0, 2] = fx / z, -fx * p[:, 0] / z**2
         d_proj[:, 1, 1], d_proj[:, 1, 2] = fy / z, -fy * p[:, 1] / z**2
         jacobian = d_proj @ np.concatenate([identity, -_skew_rows(p)], axis=2)  # (N, 2, 6)
+        if basis is not None:
+            jacobian = jacobian @ basis  # (N, 2, k): only the allowed motions
         weighted = jacobian * weight[:, None, None]
         hessian = np.einsum("nki,nkj->ij", weighted, jacobian)
         gradient = np.einsum("nki,nk->i", weighted, residual)
@@ -71,9 +74,13 @@ def _gauss_newton(
         system = hessian
         if prior is not None:
             prior_inverse, information = prior
-            system = hessian + information
-            gradient = gradient + information @ _pose_error(pose, prior_inverse)
+            reduced = information if basis is None else basis.T @ information @ basis
+            prior_gradient = information @ _pose_error(pose, prior_inverse)
+            system = hessian + reduced
+            gradient = gradient + (prior_gradient if basis is None else basis.T @ prior_gradient)
         step = -np.linalg.lstsq(system, gradient, rcond=None)[0]
+        if basis is not None:
+            step = basis @ step
         update = np.eye(4)
         update[:3, :3] = so3_exp(step[3:])
         update[:3, 3] = step[:3]
@@ -81,6 +88,20 @@ def _gauss_newton(
         if np.linalg.norm(step) < 1e-10:
             break
     return pose, hessian, variance_factor
+
+
+def planar_basis(T_base_camera: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(6, 3) left perturbations of ``T_camera_world`` caused by moving the base by (dx, dy, dyaw) in its own
+    frame: δ = −Ad(T_camera_base)·ξ_base (translation first)."""
+    camera_base = np.linalg.inv(np.asarray(T_base_camera, np.float64))
+    rotation, translation = camera_base[:3, :3], camera_base[:3, 3]
+    adjoint = np.zeros((6, 6))
+    adjoint[:3, :3] = rotation
+    adjoint[:3, 3:] = _skew_rows(translation[None, :])[0] @ rotation
+    adjoint[3:, 3:] = rotation
+    select = np.zeros((6, 3))
+    select[0, 0] = select[1, 1] = select[5, 2] = 1.0
+    return -adjoint @ select
 
 
 def refine_pose_with_prior(
@@ -95,27 +116,36 @@ def refine_pose_with_prior(
     huber_px: float = 2.0,
     iterations: int = 6,
     gate: float = 1000.0,
+    basis: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], bool]:
     """Refined ``T_camera_world`` (see the module docstring) and whether the prior was used.
 
-    ``prior_std`` is (metres, radians) per axis. The prior is dropped when the reprojection-only estimate and
-    the prediction disagree grossly (squared Mahalanobis distance over their combined uncertainty above
-    ``gate``): then the prediction is what is wrong (a collision, a slip, a hand-held jerk). The gate is far
-    above χ²₆'s 22.5 because the reprojection covariance ignores the map points' own errors, which are
-    correlated: on the simulated plant 5 % of well-tracked frames exceed 100 although fusing them is right.
+    ``basis`` (6, k) restricts the update to k motions (columns: left perturbations of ``T_camera_world`` as
+    translation, rotation), e.g. a ground robot's x, y and yaw. ``prior_std`` is (metres, radians) per axis.
+    The prior is dropped when the reprojection-only estimate and the prediction disagree grossly (squared
+    Mahalanobis distance over their combined uncertainty above ``gate``): then the prediction is what is wrong
+    (a collision, a slip, a hand-held jerk). The gate is far above χ²₆'s 22.5 because the reprojection
+    covariance ignores the map points' own errors, which are correlated: on the simulated plant 5 % of
+    well-tracked frames exceed 100 although fusing them is right.
     """
     information: NDArray[np.float64] = np.diag([1.0 / prior_std[0] ** 2] * 3 + [1.0 / prior_std[1] ** 2] * 3)
     prior_inverse: NDArray[np.float64] = np.linalg.inv(np.asarray(prior_camera_world, np.float64))
     args = (points_world, pixels, camera_matrix)
     alone, hessian, variance_factor = _gauss_newton(
-        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations
+        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations, basis
     )
     # The points' real scatter (depth quantisation, keypoint noise) sets the weight of the reprojection term:
     # scale pixel_std by the observed residuals, never below the nominal value.
     pixel_std = pixel_std * math.sqrt(max(variance_factor, 1.0))
     innovation = _pose_error(alone, prior_inverse)
-    combined = np.linalg.pinv(hessian) * max(variance_factor, 1.0) + np.linalg.inv(information)
+    if basis is not None:
+        # Compare in the allowed motions' coordinates (least squares: the innovation's other part is 0).
+        innovation = np.asarray(np.linalg.lstsq(basis, innovation, rcond=None)[0], np.float64)
+        information_k = basis.T @ information @ basis
+    else:
+        information_k = information
+    combined = np.linalg.pinv(hessian) * max(variance_factor, 1.0) + np.linalg.inv(information_k)
     if float(innovation @ np.linalg.solve(combined, innovation)) > gate:
         return alone, False
-    fused, _, _ = _gauss_newton(alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations)
+    fused, _, _ = _gauss_newton(alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations, basis)
     return fused, True
