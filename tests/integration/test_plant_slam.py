@@ -29,4 +29,4 @@ def test_the_plant_loop_is_closed_on_its_revisit(tmp_path: Path) -> None:
     assert truth is not None
     closed, odometry = ape(truth, result.trajectory).rmse, ape(truth, result.odometry).rmse
     assert closed < odometry, (closed, odometry)
-    assert closed < 0.10, closed
+    assert closed < 0.04, closed  # 1.9 cm measured; odometry alone 5.5 cm

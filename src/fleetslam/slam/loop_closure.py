@@ -32,12 +32,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fleetslam.errors import MissingExtraError, SlamError
-from fleetslam.geometry import invert, make_pose, rotation_angle
+from fleetslam.geometry import invert, make_pose, planar_camera_pose, rotation_angle
 from fleetslam.slam.bayes_filter import VIRTUAL_PLACE, BayesFilter, adjust_likelihood
 from fleetslam.slam.database import MapDatabase
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.matching import match_mutual
 from fleetslam.slam.memory import Memory
+from fleetslam.slam.pose_refinement import planar_basis, refine_pose_with_prior
 from fleetslam.slam.signature import Link, LinkType, Signature
 from fleetslam.slam.vocabulary import VisualVocabulary
 
@@ -131,6 +132,8 @@ class GeometricVerifier:
         self.mode = correspondences
         self.nndr_ratio = nndr_ratio
         self.max_disagreement = max_disagreement
+        self.planar_mounting: NDArray[np.float64] | None = None
+        """T_base_camera of a ground robot: transforms are then solved for x, y and yaw of the base only."""
 
     @staticmethod
     def correspondences(query: Signature, candidate: Signature) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -153,8 +156,10 @@ class GeometricVerifier:
             valid &= points[:, 2] <= self.max_depth
         return valid
 
-    def _pnp(self, points: NDArray[np.float64], pixels: NDArray[np.float64]) -> tuple[NDArray[np.float64] | None, int]:
-        """``T_camera_points`` (the points' frame seen from the camera of ``pixels``) and the inlier count."""
+    def _pnp(
+        self, points: NDArray[np.float64], pixels: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_]]:
+        """``T_camera_points`` (the points' frame seen from the camera of ``pixels``) and the inlier mask."""
         import cv2
 
         # OpenCV's RANSAC draws from the global RNG; a fixed seed keeps verification deterministic.
@@ -170,18 +175,34 @@ class GeometricVerifier:
             flags=cv2.SOLVEPNP_EPNP,
         )
         if not ok or inliers is None or len(inliers) < 4:
-            return None, 0 if inliers is None else len(inliers)
+            mask = np.zeros(len(points), bool)
+            if inliers is not None:
+                mask[inliers.reshape(-1)] = True
+            return None, mask
         index = inliers.reshape(-1)
         rvec, tvec = cv2.solvePnPRefineLM(points[index], pixels[index], self.camera_matrix, None, rvec, tvec)
         rotation, _ = cv2.Rodrigues(rvec)
         pose = make_pose(rotation, tvec.ravel())
+        if self.planar_mounting is not None:
+            # A ground robot's two views differ by x, y and yaw of its base: solve for those three only.
+            inlier_mask = self._inliers(pose, points, pixels)
+            start = invert(planar_camera_pose(invert(pose), self.planar_mounting))
+            pose, _ = refine_pose_with_prior(
+                start, points[inlier_mask], pixels[inlier_mask], self.camera_matrix, start, (1e6, 1e6),
+                huber_px=self.reprojection_error, basis=planar_basis(self.planar_mounting),
+            )  # fmt: skip
         # Inliers again under the refined pose: the count that is compared with min_inliers.
-        camera = points @ rotation.T + tvec.reshape(1, 3)
+        return pose, self._inliers(pose, points, pixels)
+
+    def _inliers(
+        self, pose: NDArray[np.float64], points: NDArray[np.float64], pixels: NDArray[np.float64]
+    ) -> NDArray[np.bool_]:
+        camera = points @ pose[:3, :3].T + pose[:3, 3]
         in_front = camera[:, 2] > 1e-6
         uv = camera[:, :2] / np.where(in_front, camera[:, 2], 1.0)[:, None]
         uv = uv * np.diag(self.camera_matrix)[:2] + self.camera_matrix[:2, 2]
         error = np.linalg.norm(uv - pixels, axis=1)
-        return pose, int(np.count_nonzero(in_front & (error <= self.reprojection_error)))
+        return np.asarray(in_front & (error <= self.reprojection_error))
 
     def verify(self, query: Signature, candidate: Signature) -> VerificationResult:
         """Estimate ``T_candidate_query``; rejected below ``min_inliers`` or when the two directions disagree."""
@@ -199,7 +220,8 @@ class GeometricVerifier:
         if n < max(self.min_inliers, 4):
             return VerificationResult(None, 0, n, f"only {n} correspondences (< {self.min_inliers})")
         pixels = query.keypoints[q_idx][valid].astype(np.float64)
-        T_query_candidate, count = self._pnp(candidate_points[valid], pixels)
+        T_query_candidate, forward_inliers = self._pnp(candidate_points[valid], pixels)
+        count = int(forward_inliers.sum())
         if T_query_candidate is None or count < self.min_inliers:
             return VerificationResult(None, count, n, f"{count} PnP inliers (< {self.min_inliers})")
         candidate_from_query = invert(T_query_candidate)
@@ -208,9 +230,10 @@ class GeometricVerifier:
             back = self._valid_points(query_points)
             reverse, reverse_count = (None, 0)
             if back.sum() >= max(self.min_inliers, 4):
-                reverse, reverse_count = self._pnp(
+                reverse, reverse_inliers = self._pnp(
                     query_points[back], candidate.keypoints[c_idx][back].astype(np.float64)
                 )
+                reverse_count = int(reverse_inliers.sum())
             if reverse is None or reverse_count < self.min_inliers:
                 return VerificationResult(
                     None, count, n, f"reverse PnP: {reverse_count} inliers (< {self.min_inliers})"

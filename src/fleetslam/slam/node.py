@@ -180,7 +180,7 @@ class SlamNode:
                 if extrinsic is not None:
                     self.base_camera = extrinsic
                     if self.pipeline is not None:
-                        self.pipeline.odometry.base_camera = extrinsic
+                        self.pipeline.set_mounting(extrinsic)
                 else:
                     self.bad_inputs += 1
                     log.warning("%s: tf_static %s -> %s is not a valid transform; ignored", self.agent, parent, child)

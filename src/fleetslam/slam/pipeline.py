@@ -103,6 +103,15 @@ class SlamPipeline:
         self._rejected: list[tuple[int, int]] = []
         self._per_frame: list[dict[str, Any]] = []
         self._last_kf: int | None = None
+        self.set_mounting(base_camera)
+
+    def set_mounting(self, base_camera: NDArray[np.float64] | None) -> None:
+        """The camera's mounting on a ground robot (T_base_camera): with ``odometry.planar_motion`` the odometry,
+        loop closures and relocalisation then solve for the base's x, y and yaw only."""
+        self.odometry.base_camera = base_camera
+        if self.detector is not None:
+            planar = self.config.odometry.planar_motion and base_camera is not None
+            self.detector.verifier.planar_mounting = base_camera if planar else None
 
     def step(self, frame: RGBDFrame) -> StepResult:
         """Process one frame: track it, and on a keyframe add it to the graph and look for a loop."""
