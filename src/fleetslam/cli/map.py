@@ -19,12 +19,32 @@ def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True)
     build = sub.add_parser("build", help="integrate scans into an octree and write it (.bt or .ot)")
     build.add_argument(
-        "input", type=Path, help="scans: OctoMap .graph, scan log (.log), or x y z points (.xyz/.txt/.dat, .bz2)"
+        "input",
+        type=Path,
+        help="scans: OctoMap .graph, scan log (.log), x y z points (.xyz/.txt/.dat, .bz2); or an RGB-D sequence: "
+        "a TUM folder, a simulator export or an .mcap recording (with --trajectory or its ground truth)",
     )
     build.add_argument("-o", "--output", type=Path, required=True, help="map file to write (.bt or .ot)")
     build.add_argument("--resolution", type=float, default=0.05, help="voxel edge in metres (default 0.05)")
     build.add_argument("--max-range", type=float, default=-1.0, help="cut longer rays here, metres (default: no limit)")
-    build.add_argument("--kind", default=None, help="input kind (graph, log, xyz) instead of guessing from the name")
+    build.add_argument(
+        "--kind", default=None, help="input kind (graph, log, xyz, tum, sim, mcap) instead of guessing from the name"
+    )
+    build.add_argument(
+        "--trajectory",
+        type=Path,
+        default=None,
+        help="RGB-D input: TUM file of camera poses T_world_camera (optical frame), e.g. slam run's "
+        "trajectory.txt (default: the sequence's ground truth)",
+    )
+    build.add_argument(
+        "--max-difference", type=float, default=0.02, help="RGB-D input: stamp tolerance to a pose, s (default 0.02)"
+    )
+    build.add_argument("--every", type=int, default=1, help="RGB-D input: use every N-th frame (default 1)")
+    build.add_argument("--pixel-step", type=int, default=4, help="RGB-D input: use every K-th pixel (default 4)")
+    build.add_argument(
+        "--max-depth", type=float, default=6.0, help="RGB-D input: ignore depth beyond this, m (default 6)"
+    )
     build.add_argument("--origin", default=None, help="sensor position 'x,y,z' for point files (default 0,0,0)")
     build.add_argument("--no-progress", action="store_true", help="no progress bar")
     build.set_defaults(func=run_build)
@@ -75,6 +95,8 @@ def run_build(args: argparse.Namespace) -> int:
     output_kind = _output_kind(args.output)
     if not args.resolution > 0:
         raise ConfigError(f"--resolution must be > 0, got {args.resolution}")
+    if args.kind in RGBD_KINDS or (args.kind is None and _is_rgbd(args.input)):
+        return _build_from_rgbd(args, output_kind)
     scans = load_scans(args.input, kind=args.kind, origin=_parse_origin(args.origin))
     tree = OccupancyOctree(args.resolution)
     total = sum(len(scan.points) for scan in scans)
@@ -87,6 +109,55 @@ def run_build(args: argparse.Namespace) -> int:
     else:
         tree.write(args.output)
     print(f"{args.output}: {len(scans)} scans, {total} points, {tree.num_nodes()} nodes at {args.resolution} m")
+    return 0
+
+
+RGBD_KINDS = ("tum", "sim", "mcap")
+
+
+def _is_rgbd(path: Path) -> bool:
+    return path.is_dir() or path.suffix.lower() == ".mcap"
+
+
+def _build_from_rgbd(args: argparse.Namespace, output_kind: str) -> int:
+    from tqdm import tqdm
+
+    from fleetslam.datasets import open_source
+    from fleetslam.mapping.octree import OccupancyOctree
+    from fleetslam.mapping.rgbd_scans import RgbdScanCounts, rgbd_scans
+    from fleetslam.trajectory import read_tum
+
+    source = open_source(args.input, kind=args.kind)
+    trajectory = read_tum(args.trajectory) if args.trajectory is not None else source.groundtruth()
+    if trajectory is None:
+        raise ConfigError(f"{args.input}: the sequence has no ground truth; give the camera poses with --trajectory")
+    counts = RgbdScanCounts()
+    tree = OccupancyOctree(args.resolution)
+    points = 0
+    scans = rgbd_scans(
+        source, trajectory, max_difference=args.max_difference, every=args.every, pixel_step=args.pixel_step,
+        max_depth=args.max_depth, counts=counts,
+    )  # fmt: skip
+    with tqdm(total=len(source), unit="frame", disable=args.no_progress, desc="integrating") as bar:
+        for scan in scans:
+            tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
+            points += len(scan.points)
+            bar.n = counts.frames
+            bar.refresh()
+    if counts.used == 0:
+        raise ConfigError(
+            f"{args.input}: none of its {counts.frames} frames has a pose within {args.max_difference} s in "
+            f"{args.trajectory or 'its ground truth'} (do the stamps use the same clock?)"
+        )
+    if output_kind == "bt":
+        tree.write_binary(args.output)
+    else:
+        tree.write(args.output)
+    skipped = f"; {counts.unmatched} frames without a pose skipped" if counts.unmatched else ""
+    print(
+        f"{args.output}: {counts.used} of {counts.frames} frames, {points} points, {tree.num_nodes()} nodes "
+        f"at {args.resolution} m{skipped}"
+    )
     return 0
 
 
