@@ -248,7 +248,7 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
 
 
 @njit(cache=True, parallel=True)
-def trace_into_grid(ends, status, origin, resolution, lo, dims):  # type: ignore[no-untyped-def]
+def trace_into_grid(ends, status, origin, resolution, lo, dims, threads):  # type: ignore[no-untyped-def]
     """Mark every free key of every used ray in a dense grid over [lo, lo + dims) (1 = free).
 
     computeRayKeys specialised for the grid: the key walks as a linear grid index (so "reached the end key" is
@@ -266,56 +266,77 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims):  # type: ignore
     stride_x = dims[1] * dims[2]
     stride_y = dims[2]
     start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
-    for i in prange(ends.shape[0]):
-        if status[i] != 0:
-            continue
-        ex, ey, ez = ends[i, 0], ends[i, 1], ends[i, 2]
-        end_x = _coord_to_key(np.float64(ex), factor)
-        end_y = _coord_to_key(np.float64(ey), factor)
-        end_z = _coord_to_key(np.float64(ez), factor)
-        if end_x < 0 or end_y < 0 or end_z < 0:
-            continue
-        if kx0 == end_x and ky0 == end_y and kz0 == end_z:
-            continue
-        end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
-        if grid[start] == 0:
-            grid[start] = 1
-        dx = np.float32(ex - ox)
-        dy = np.float32(ey - oy)
-        dz = np.float32(ez - oz)
-        norm_sq = np.float32(np.float32(np.float32(dx * dx) + np.float32(dy * dy)) + np.float32(dz * dz))
-        length = np.float32(math.sqrt(np.float64(norm_sq)))
-        sx, tmx, tdx = _axis_init(np.float32(dx / length), kx0, ox, resolution)
-        sy, tmy, tdy = _axis_init(np.float32(dy / length), ky0, oy, resolution)
-        sz, tmz, tdz = _axis_init(np.float32(dz / length), kz0, oz, resolution)
-        ix = sx * stride_x
-        iy = sy * stride_y
-        iz = sz
-        length64 = np.float64(length)
-        index = start
-        while True:
-            if tmx < tmy:
-                if tmx < tmz:
-                    index += ix
-                    tmx += tdx
-                else:
-                    index += iz
-                    tmz += tdz
-            elif tmy < tmz:
-                index += iy
-                tmy += tdy
+    # prange gives each thread one contiguous part of its range, but a depth image's rays come row by row and
+    # rows differ a lot in length (floor vs far wall): contiguous parts load the threads unevenly (1.6× instead
+    # of 2× on two cores). So the rays go in blocks dealt round-robin: thread t (lanes t·per … t·per + per − 1)
+    # takes blocks t, t + threads, t + 2·threads, … in order, which keeps each thread's walk local.
+    n = ends.shape[0]
+    per = max(1, 256 // threads)
+    lanes = per * threads
+    block = (n + lanes - 1) // lanes
+    for lane in prange(lanes):
+        b = (lane % per) * threads + lane // per
+        for i in range(b * block, min(n, (b + 1) * block)):
+            _trace_one_into_grid(
+                grid, size, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo,
+                stride_x, stride_y,
+            )  # fmt: skip
+    return grid
+
+
+@njit(cache=True, inline="always")
+def _trace_one_into_grid(  # type: ignore[no-untyped-def]
+    grid, size, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo, stride_x, stride_y
+):
+    """One ray of :func:`trace_into_grid`."""
+    if status[i] != 0:
+        return
+    ex, ey, ez = ends[i, 0], ends[i, 1], ends[i, 2]
+    end_x = _coord_to_key(np.float64(ex), factor)
+    end_y = _coord_to_key(np.float64(ey), factor)
+    end_z = _coord_to_key(np.float64(ez), factor)
+    if end_x < 0 or end_y < 0 or end_z < 0:
+        return
+    if kx0 == end_x and ky0 == end_y and kz0 == end_z:
+        return
+    end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
+    if grid[start] == 0:
+        grid[start] = 1
+    dx = np.float32(ex - ox)
+    dy = np.float32(ey - oy)
+    dz = np.float32(ez - oz)
+    norm_sq = np.float32(np.float32(np.float32(dx * dx) + np.float32(dy * dy)) + np.float32(dz * dz))
+    length = np.float32(math.sqrt(np.float64(norm_sq)))
+    sx, tmx, tdx = _axis_init(np.float32(dx / length), kx0, ox, resolution)
+    sy, tmy, tdy = _axis_init(np.float32(dy / length), ky0, oy, resolution)
+    sz, tmz, tdz = _axis_init(np.float32(dz / length), kz0, oz, resolution)
+    ix = sx * stride_x
+    iy = sy * stride_y
+    iz = sz
+    length64 = np.float64(length)
+    index = start
+    while True:
+        if tmx < tmy:
+            if tmx < tmz:
+                index += ix
+                tmx += tdx
             else:
                 index += iz
                 tmz += tdz
-            if index == end_index:
-                break
-            if min(min(tmx, tmy), tmz) > length64:
-                break
-            if index < 0 or index >= size:
-                break  # memory guard only; the margin makes it unreachable
-            if grid[index] == 0:
-                grid[index] = 1
-    return grid
+        elif tmy < tmz:
+            index += iy
+            tmy += tdy
+        else:
+            index += iz
+            tmz += tdz
+        if index == end_index:
+            break
+        if min(min(tmx, tmy), tmz) > length64:
+            break
+        if index < 0 or index >= size:
+            break  # memory guard only; the margin makes it unreachable
+        if grid[index] == 0:
+            grid[index] = 1
 
 
 @njit(cache=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -49,7 +50,7 @@ def scan_keys(
     hi = np.minimum(np.maximum(hi, origin_key[0]) + 2, 2 * TREE_MAX_VAL - 1)
     dims = (hi - lo + 1).astype(np.int64)
     if int(np.prod(dims)) <= MAX_GRID_CELLS:
-        grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims)
+        grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims, numba.get_num_threads())
         K.mark_occupied(grid, occupied, lo, dims)
         free, occ = K.collect_grid(grid, lo, dims)
         return free, occ, status
