@@ -121,10 +121,11 @@ class BackendConfig(ConfigModel):
     """Reject a loop closure if, after optimisation, a constraint's translational error exceeds this factor
     of its expected standard deviation (RTAB-Map RGBD/OptimizeMaxError; 0 disables)."""
 
-    odometry_translation_std: float = Field(default=0.01, gt=0.0)
-    """Standard deviation of odometry translation between keyframes (metres)."""
+    odometry_translation_std: float = Field(default=0.005, gt=0.0)
+    """Standard deviation of odometry translation between keyframes (metres; measured on the simulated plant:
+    a few millimetres with the motion prior and planar motion)."""
 
-    odometry_rotation_std_deg: float = Field(default=0.5, gt=0.0)
+    odometry_rotation_std_deg: float = Field(default=0.2, gt=0.0)
     """Standard deviation of odometry rotation between keyframes (degrees)."""
 
     loop_translation_std: float = Field(default=0.02, gt=0.0)
