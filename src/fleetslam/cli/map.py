@@ -6,45 +6,60 @@ import argparse
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from fleetslam.errors import ConfigError, MapFileError
+
+if TYPE_CHECKING:
+    from fleetslam.mapping.octree import OccupancyOctree
 
 log = logging.getLogger(__name__)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True)
-    build = sub.add_parser("build", help="integrate scans into an octree and write it (.bt or .ot)")
+    build = sub.add_parser(
+        "build",
+        help="integrate scans or RGB-D frames into an octree and write it (.bt or .ot)",
+        description="Integrate laser scans, or the depth images of an RGB-D sequence at their camera poses, into "
+        "an occupancy octree. RGB-D poses: --trajectory, a TUM file ('stamp tx ty tz qx qy qz qw' per line) of "
+        "camera poses T_world_camera of the camera's optical frame (x right, y down, z forward), the convention "
+        "of 'fleetslam slam run' trajectory.txt and of TUM and simulator groundtruth.txt; each frame takes the "
+        "pose of the nearest stamp within --max-difference, frames without one are skipped. Without "
+        "--trajectory: the sequence's ground truth, else the poses its frames carry (wheel odometry of a "
+        "simulator export). Free space is traced from the camera centre.",
+    )
     build.add_argument(
         "input",
         type=Path,
         help="scans: OctoMap .graph, scan log (.log), x y z points (.xyz/.txt/.dat, .bz2); or an RGB-D sequence: "
-        "a TUM folder, a simulator export or an .mcap recording (with --trajectory or its ground truth)",
+        "a TUM folder, a simulator export, an .mcap file or a 'fleetslam record' folder",
     )
     build.add_argument("-o", "--output", type=Path, required=True, help="map file to write (.bt or .ot)")
     build.add_argument("--resolution", type=float, default=0.05, help="voxel edge in metres (default 0.05)")
     build.add_argument("--max-range", type=float, default=-1.0, help="cut longer rays here, metres (default: no limit)")
     build.add_argument(
-        "--kind", default=None, help="input kind (graph, log, xyz, tum, sim, mcap) instead of guessing from the name"
+        "--kind",
+        default=None,
+        help="input kind instead of guessing from the path: graph, log, xyz (scans) or tum, sim, mcap (RGB-D)",
     )
-    build.add_argument(
+    rgbd = build.add_argument_group("RGB-D sequences")
+    rgbd.add_argument(
         "--trajectory",
         type=Path,
         default=None,
-        help="RGB-D input: TUM file of camera poses T_world_camera (optical frame), e.g. slam run's "
-        "trajectory.txt (default: the sequence's ground truth)",
+        help="TUM file of camera poses T_world_camera (optical frame), e.g. slam run's trajectory.txt or a "
+        "groundtruth.txt (default: the sequence's ground truth, else its frames' own poses)",
     )
-    build.add_argument(
-        "--max-difference", type=float, default=0.02, help="RGB-D input: stamp tolerance to a pose, s (default 0.02)"
+    rgbd.add_argument(
+        "--max-difference", type=float, default=0.02, help="largest frame-to-pose stamp difference, s (default 0.02)"
     )
-    build.add_argument("--every", type=int, default=1, help="RGB-D input: use every N-th frame (default 1)")
-    build.add_argument("--pixel-step", type=int, default=4, help="RGB-D input: use every K-th pixel (default 4)")
-    build.add_argument(
-        "--max-depth", type=float, default=6.0, help="RGB-D input: ignore depth beyond this, m (default 6)"
-    )
+    rgbd.add_argument("--every", type=int, default=1, help="use every N-th frame (default 1: all)")
+    rgbd.add_argument("--pixel-step", type=int, default=4, help="use every K-th pixel of every K-th row (default 4)")
+    rgbd.add_argument("--min-depth", type=float, default=0.3, help="ignore depth below this, m (default 0.3)")
+    rgbd.add_argument("--max-depth", type=float, default=6.0, help="ignore depth beyond this, m (default 6)")
     build.add_argument("--origin", default=None, help="sensor position 'x,y,z' for point files (default 0,0,0)")
     build.add_argument("--no-progress", action="store_true", help="no progress bar")
     build.set_defaults(func=run_build)
@@ -87,77 +102,80 @@ def _output_kind(path: Path) -> str:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    from fleetslam.mapping.scan_io import SEQUENCE_KINDS, input_kind
+
+    output_kind = _output_kind(args.output)
+    if not args.resolution > 0:
+        raise ConfigError(f"--resolution must be > 0, got {args.resolution}")
+    kind = input_kind(args.input, args.kind)
+    if kind in SEQUENCE_KINDS:
+        if args.origin is not None:
+            raise ConfigError("--origin: RGB-D frames are seen from their camera poses; leave --origin out")
+        return _build_from_rgbd(args, kind, output_kind)
+    if args.trajectory is not None:
+        raise ConfigError(
+            f"--trajectory: {args.input} is a scan file ({kind}) with its own poses, not an RGB-D sequence"
+        )
+    return _build_from_scans(args, kind, output_kind)
+
+
+def _write_tree(tree: OccupancyOctree, path: Path, output_kind: str) -> None:
+    if output_kind == "bt":
+        tree.write_binary(path)
+    else:
+        tree.write(path)
+
+
+def _build_from_scans(args: argparse.Namespace, kind: str, output_kind: str) -> int:
     from tqdm import tqdm
 
     from fleetslam.mapping.octree import OccupancyOctree
     from fleetslam.mapping.scan_io import load_scans
 
-    output_kind = _output_kind(args.output)
-    if not args.resolution > 0:
-        raise ConfigError(f"--resolution must be > 0, got {args.resolution}")
-    if args.kind in RGBD_KINDS or (args.kind is None and _is_rgbd(args.input)):
-        return _build_from_rgbd(args, output_kind)
-    scans = load_scans(args.input, kind=args.kind, origin=_parse_origin(args.origin))
+    scans = load_scans(args.input, kind=kind, origin=_parse_origin(args.origin))
     tree = OccupancyOctree(args.resolution)
     total = sum(len(scan.points) for scan in scans)
     with tqdm(total=total, unit="pt", unit_scale=True, disable=args.no_progress, desc="integrating") as bar:
         for scan in scans:
             tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
             bar.update(len(scan.points))
-    if output_kind == "bt":
-        tree.write_binary(args.output)
-    else:
-        tree.write(args.output)
+    _write_tree(tree, args.output, output_kind)
     print(f"{args.output}: {len(scans)} scans, {total} points, {tree.num_nodes()} nodes at {args.resolution} m")
     return 0
 
 
-RGBD_KINDS = ("tum", "sim", "mcap")
-
-
-def _is_rgbd(path: Path) -> bool:
-    return path.is_dir() or path.suffix.lower() == ".mcap"
-
-
-def _build_from_rgbd(args: argparse.Namespace, output_kind: str) -> int:
+def _build_from_rgbd(args: argparse.Namespace, kind: str, output_kind: str) -> int:
     from tqdm import tqdm
 
-    from fleetslam.datasets import open_source
     from fleetslam.mapping.octree import OccupancyOctree
-    from fleetslam.mapping.rgbd_scans import RgbdScanCounts, rgbd_scans
-    from fleetslam.trajectory import read_tum
+    from fleetslam.mapping.rgbd_scans import open_rgbd_scans
 
-    source = open_source(args.input, kind=args.kind)
-    trajectory = read_tum(args.trajectory) if args.trajectory is not None else source.groundtruth()
-    if trajectory is None:
-        raise ConfigError(f"{args.input}: the sequence has no ground truth; give the camera poses with --trajectory")
-    counts = RgbdScanCounts()
+    scans = open_rgbd_scans(
+        args.input,
+        kind=kind,
+        trajectory=args.trajectory,
+        max_difference=args.max_difference,
+        every=args.every,
+        pixel_step=args.pixel_step,
+        min_depth=args.min_depth,
+        max_depth=args.max_depth,
+    )
     tree = OccupancyOctree(args.resolution)
-    points = 0
-    scans = rgbd_scans(
-        source, trajectory, max_difference=args.max_difference, every=args.every, pixel_step=args.pixel_step,
-        max_depth=args.max_depth, counts=counts,
-    )  # fmt: skip
-    with tqdm(total=len(source), unit="frame", disable=args.no_progress, desc="integrating") as bar:
+    with tqdm(total=len(scans), unit="frame", disable=args.no_progress, desc="integrating") as bar:
         for scan in scans:
             tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
-            points += len(scan.points)
-            bar.n = counts.frames
-            bar.refresh()
-    if counts.used == 0:
-        raise ConfigError(
-            f"{args.input}: none of its {counts.frames} frames has a pose within {args.max_difference} s in "
-            f"{args.trajectory or 'its ground truth'} (do the stamps use the same clock?)"
-        )
-    if output_kind == "bt":
-        tree.write_binary(args.output)
-    else:
-        tree.write(args.output)
-    skipped = f"; {counts.unmatched} frames without a pose skipped" if counts.unmatched else ""
+            bar.update(scans.counts.frames - bar.n)
+        bar.update(scans.counts.frames - bar.n)
+    _write_tree(tree, args.output, output_kind)
+    used = scans.counts
+    every = f" (--every {args.every})" if args.every > 1 else ""
     print(
-        f"{args.output}: {counts.used} of {counts.frames} frames, {points} points, {tree.num_nodes()} nodes "
-        f"at {args.resolution} m{skipped}"
+        f"{args.output}: {used.used} of {used.frames} frames{every}, {used.points} points, {tree.num_nodes()} nodes "
+        f"at {args.resolution} m"
     )
+    skipped = scans.skipped_summary()
+    if skipped is not None:
+        print(skipped)
     return 0
 
 

@@ -10,6 +10,9 @@ and poses as float32, so we do too. A node's pose maps its sensor frame to the w
 Scan logs (ScanGraph::readPlainASCII, the input of log2graph) hold ``NODE x y z roll pitch yaw`` lines each
 followed by the node's ``x y z`` points; a plain point file has only point lines. ``.bz2`` and ``.gz`` files are
 read transparently.
+
+RGB-D sequences (TUM folders, simulator exports, MCAP recordings) are input kinds too (:data:`SEQUENCE_KINDS`,
+guessed from a folder or an ``.mcap`` name); :mod:`fleetslam.mapping.rgbd_scans` turns their frames into scans.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fleetslam.datasets.base import LOADERS as DATASET_LOADERS
+from fleetslam.datasets.base import guess_kind
 from fleetslam.errors import DatasetError
 
 _POINT = np.dtype([("tag", "<i4"), ("xyz", "<f8", (3,))])
@@ -412,26 +417,55 @@ def _load_xyz(path: Path, *, origin: NDArray[np.float64] | None) -> list[ScanNod
 
 #: input kind → loader. Kinds are chosen from the file name by :func:`scan_kind`.
 SCAN_LOADERS: Mapping[str, ScanLoader] = {"graph": _load_graph, "log": _load_log, "xyz": _load_xyz}
+#: RGB-D sequence kinds (the loaders of :mod:`fleetslam.datasets`), read as scans by
+#: :func:`fleetslam.mapping.rgbd_scans.open_rgbd_scans` because they need camera poses and are read lazily.
+SEQUENCE_KINDS: tuple[str, ...] = tuple(sorted(DATASET_LOADERS))
 _SUFFIX_KINDS = {".graph": "graph", ".log": "log", ".xyz": "xyz", ".txt": "xyz", ".dat": "xyz", ".pts": "xyz"}
 
 
+def _known_kinds() -> str:
+    return ", ".join([*sorted(SCAN_LOADERS), *SEQUENCE_KINDS])
+
+
 def scan_kind(path: str | Path) -> str:
-    """Input kind of a scan file from its name (compression suffixes ignored)."""
+    """Input kind of a scan input from its name (compression suffixes ignored); a folder or an ``.mcap`` file is
+    an RGB-D sequence whose kind :func:`fleetslam.datasets.guess_kind` tells."""
     p = Path(path)
+    if p.is_dir() or p.suffix.lower() == ".mcap":
+        return guess_kind(p)
     suffixes = [s for s in p.suffixes if s not in (".bz2", ".gz")]
+    if not suffixes and not p.exists():
+        raise DatasetError(f"{path}: not found (expected a scan file or an RGB-D sequence folder)")
     kind = _SUFFIX_KINDS.get(suffixes[-1].lower()) if suffixes else None
     if kind is None:
         raise DatasetError(
-            f"{path}: unknown scan input kind '{''.join(p.suffixes)}'; known: {', '.join(sorted(_SUFFIX_KINDS))}"
+            f"{path}: unknown scan input kind '{''.join(p.suffixes)}'; known: {', '.join(sorted(_SUFFIX_KINDS))}, "
+            "a dataset folder or .mcap"
         )
+    return kind
+
+
+def input_kind(path: str | Path, kind: str | None = None) -> str:
+    """``kind`` when it is a known input kind (a scan kind or a sequence kind), else the kind guessed from ``path``.
+
+    Raises:
+        DatasetError: ``kind`` is unknown or the path's kind cannot be told.
+    """
+    if kind is None:
+        return scan_kind(path)
+    if kind not in SCAN_LOADERS and kind not in SEQUENCE_KINDS:
+        raise DatasetError(f"{path}: unknown scan input kind '{kind}'; known: {_known_kinds()}")
     return kind
 
 
 def load_scans(path: str | Path, *, kind: str | None = None, origin: ArrayLike | None = None) -> list[ScanNode]:
     """Scans of an input file, by ``kind`` (a key of :data:`SCAN_LOADERS`) or by its file name."""
-    chosen = kind or scan_kind(path)
+    chosen = input_kind(path, kind)
     loader = SCAN_LOADERS.get(chosen)
     if loader is None:
-        raise DatasetError(f"{path}: unknown scan input kind '{chosen}'; known: {', '.join(sorted(SCAN_LOADERS))}")
+        raise DatasetError(
+            f"{path}: '{chosen}' is an RGB-D sequence, not a scan file; read it with "
+            "fleetslam.mapping.rgbd_scans.open_rgbd_scans (it needs camera poses)"
+        )
     sensor = None if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
     return loader(Path(path), origin=sensor)
