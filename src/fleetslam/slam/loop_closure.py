@@ -38,7 +38,7 @@ from fleetslam.slam.database import MapDatabase
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.matching import match_mutual
 from fleetslam.slam.memory import Memory
-from fleetslam.slam.pose_refinement import planar_basis, refine_pose_with_prior
+from fleetslam.slam.pose_refinement import planar_basis, refine_pose
 from fleetslam.slam.signature import Link, LinkType, Signature
 from fleetslam.slam.vocabulary import VisualVocabulary
 
@@ -187,8 +187,8 @@ class GeometricVerifier:
             # A ground robot's two views differ by x, y and yaw of its base: solve for those three only.
             inlier_mask = self._inliers(pose, points, pixels)
             start = invert(planar_camera_pose(invert(pose), self.planar_mounting))
-            pose, _ = refine_pose_with_prior(
-                start, points[inlier_mask], pixels[inlier_mask], self.camera_matrix, start, (1e6, 1e6),
+            pose = refine_pose(
+                start, points[inlier_mask], pixels[inlier_mask], self.camera_matrix,
                 huber_px=self.reprojection_error, basis=planar_basis(self.planar_mounting),
             )  # fmt: skip
         # Inliers again under the refined pose: the count that is compared with min_inliers.

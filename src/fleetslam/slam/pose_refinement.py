@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import so3_exp, so3_log
+from fleetslam.geometry import skew, so3_exp, so3_log
 
 
 def _skew_rows(p: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -90,6 +90,26 @@ def _gauss_newton(
     return pose, hessian, variance_factor
 
 
+def refine_pose(
+    T_camera_world: NDArray[np.float64],
+    points_world: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    camera_matrix: NDArray[np.float64],
+    *,
+    pixel_std: float = 1.0,
+    huber_px: float = 2.0,
+    iterations: int = 6,
+    basis: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """``T_camera_world`` minimising the robust reprojection error alone (no prior); ``basis`` as in
+    :func:`refine_pose_with_prior`."""
+    pose, _, _ = _gauss_newton(
+        np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, None, pixel_std, huber_px,
+        iterations, basis,
+    )  # fmt: skip
+    return pose
+
+
 def planar_basis(T_base_camera: NDArray[np.float64]) -> NDArray[np.float64]:
     """(6, 3) left perturbations of ``T_camera_world`` caused by moving the base by (dx, dy, dyaw) in its own
     frame: δ = −Ad(T_camera_base)·ξ_base (translation first)."""
@@ -97,7 +117,7 @@ def planar_basis(T_base_camera: NDArray[np.float64]) -> NDArray[np.float64]:
     rotation, translation = camera_base[:3, :3], camera_base[:3, 3]
     adjoint = np.zeros((6, 6))
     adjoint[:3, :3] = rotation
-    adjoint[:3, 3:] = _skew_rows(translation[None, :])[0] @ rotation
+    adjoint[:3, 3:] = skew(translation) @ rotation
     adjoint[3:, 3:] = rotation
     select = np.zeros((6, 3))
     select[0, 0] = select[1, 1] = select[5, 2] = 1.0
