@@ -41,6 +41,27 @@ class Trajectory:
         return cls(np.asarray(stamps, dtype=np.float64), arr)
 
 
+class NearestPose:
+    """The pose of a trajectory nearest to a stamp, within ``max_difference`` seconds (stamps sorted once; an
+    exact tie goes to the earlier stamp)."""
+
+    def __init__(self, trajectory: Trajectory, max_difference: float) -> None:
+        self._order = np.argsort(trajectory.stamps, kind="stable")
+        self._stamps = trajectory.stamps[self._order]
+        self._poses = trajectory.poses
+        self._max_difference = max_difference
+
+    def __call__(self, stamp: float) -> NDArray[np.float64] | None:
+        index = int(np.searchsorted(self._stamps, stamp))
+        candidates = [i for i in (index - 1, index) if 0 <= i < len(self._stamps)]
+        if not candidates:
+            return None
+        nearest = min(candidates, key=lambda i: abs(self._stamps[i] - stamp))
+        if abs(self._stamps[nearest] - stamp) > self._max_difference:
+            return None
+        return np.asarray(self._poses[self._order[nearest]], np.float64)
+
+
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:
     """Write a trajectory in TUM format (one ``stamp tx ty tz qx qy qz qw`` line per pose)."""
     path = Path(path)

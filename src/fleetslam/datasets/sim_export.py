@@ -18,14 +18,7 @@ import yaml
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
 from fleetslam.datasets.tum import TUM_DEPTH_SCALE, TumSource, read_intrinsics_file
 from fleetslam.errors import DatasetError
-from fleetslam.trajectory import Trajectory, read_tum
-
-
-def _nearest(trajectory: Trajectory, stamp: float, max_difference: float) -> int | None:
-    if len(trajectory) == 0:
-        return None
-    k = int(np.argmin(np.abs(trajectory.stamps - stamp)))
-    return k if abs(trajectory.stamps[k] - stamp) <= max_difference else None
+from fleetslam.trajectory import NearestPose, read_tum
 
 
 class SimExportSource(TumSource):
@@ -75,13 +68,13 @@ class SimExportSource(TumSource):
 
     def __iter__(self) -> Iterator[RGBDFrame]:
         gt = self.groundtruth()
+        prior_at = None if self.odometry is None else NearestPose(self.odometry, self.max_difference)
+        truth_at = None if gt is None else NearestPose(gt, self.max_difference)
         for frame in super().__iter__():
-            if self.odometry is not None:
-                k = _nearest(self.odometry, frame.stamp, self.max_difference)
-                frame.prior = None if k is None else self.odometry.poses[k]
-            if gt is not None:
-                k = _nearest(gt, frame.stamp, self.max_difference)
-                frame.groundtruth = None if k is None else gt.poses[k]
+            if prior_at is not None:
+                frame.prior = prior_at(frame.stamp)
+            if truth_at is not None:
+                frame.groundtruth = truth_at(frame.stamp)
             yield frame
 
 

@@ -23,7 +23,7 @@ from fleetslam.datasets.base import RGBDFrame, RGBDSource, open_source
 from fleetslam.errors import ConfigError, DatasetError
 from fleetslam.mapping.keyframe_mapper import depth_to_points
 from fleetslam.mapping.scan_io import ScanNode
-from fleetslam.trajectory import Trajectory, read_tum
+from fleetslam.trajectory import NearestPose, Trajectory, read_tum
 
 log = logging.getLogger(__name__)
 
@@ -58,26 +58,6 @@ def _check_options(every: int, pixel_step: int, max_difference: float, min_depth
         raise ConfigError(f"max_difference: must be >= 0 s, got {max_difference}")
     if not 0 <= min_depth < max_depth:
         raise ConfigError(f"min_depth/max_depth: need 0 <= min_depth < max_depth, got {min_depth} and {max_depth}")
-
-
-class _NearestPose:
-    """Nearest-stamp look-up in a trajectory (stamps sorted once)."""
-
-    def __init__(self, trajectory: Trajectory, max_difference: float) -> None:
-        self._order = np.argsort(trajectory.stamps, kind="stable")
-        self._stamps = trajectory.stamps[self._order]
-        self._poses = trajectory.poses
-        self._max_difference = max_difference
-
-    def __call__(self, stamp: float) -> NDArray[np.float64] | None:
-        index = int(np.searchsorted(self._stamps, stamp))
-        candidates = [i for i in (index - 1, index) if 0 <= i < len(self._stamps)]
-        if not candidates:
-            return None
-        nearest = min(candidates, key=lambda i: abs(self._stamps[i] - stamp))
-        if abs(self._stamps[nearest] - stamp) > self._max_difference:
-            return None
-        return np.asarray(self._poses[self._order[nearest]], np.float64)
 
 
 def _frame_pose(frame: RGBDFrame, counts: RgbdScanCounts, source_name: str) -> NDArray[np.float64] | None:
@@ -130,11 +110,11 @@ def rgbd_scans(
     _check_options(every, pixel_step, max_difference, min_depth, max_depth)
     stats = counts if counts is not None else RgbdScanCounts()
     name = name or source.name
-    lookup: _NearestPose | None = None
+    lookup: NearestPose | None = None
     if trajectory is not None:
         if len(trajectory) == 0:
             raise DatasetError(f"{name}: the trajectory has no poses")
-        lookup = _NearestPose(trajectory, max_difference)
+        lookup = NearestPose(trajectory, max_difference)
     k = source.intrinsics
     for frame in source:
         stats.frames += 1
