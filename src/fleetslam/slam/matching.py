@@ -78,34 +78,44 @@ def match_by_projection(
     return query, train
 
 
-def match_mutual(
+def match_ratio(
     descriptors_a: NDArray[Any], descriptors_b: NDArray[Any], ratio: float, max_distance: float = 0.0
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Brute-force matches a → b that pass the ratio test and are each other's nearest neighbour (OpenCV's
-    brute-force k-NN: Hamming for uint8 rows, else L2)."""
+    """Brute-force nearest neighbours a → b (OpenCV's k-NN: Hamming for uint8 rows, else L2) that pass the ratio
+    test against the second nearest (``ratio`` ≥ 1: no test) and, when ``max_distance`` > 0, that bound."""
     from fleetslam.slam.features import import_cv2
 
-    if len(descriptors_a) < 2 or len(descriptors_b) < 2:
+    if len(descriptors_a) == 0 or len(descriptors_b) < 2:
         return EMPTY, EMPTY
     cv2 = import_cv2()
     binary = descriptors_a.dtype == np.uint8
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING if binary else cv2.NORM_L2)
     if not binary:
         descriptors_a, descriptors_b = descriptors_a.astype(np.float32), descriptors_b.astype(np.float32)
-
-    def nearest(x: NDArray[Any], y: NDArray[Any], ratio: float) -> dict[int, int]:
-        out = {}
-        for pair in matcher.knnMatch(x, y, k=2):
-            good = len(pair) == 2 and (ratio >= 1.0 or pair[0].distance < ratio * pair[1].distance)
-            if good and (max_distance <= 0 or pair[0].distance <= max_distance):
-                out[pair[0].queryIdx] = pair[0].trainIdx
-        return out
-
-    # The ratio test one way and a plain nearest-neighbour cross-check the other: requiring the ratio both ways
-    # lost half of the true correspondences between two views of the plant's start (21 instead of 27).
-    forward, backward = nearest(descriptors_a, descriptors_b, ratio), nearest(descriptors_b, descriptors_a, 1.0)
-    pairs = sorted((a, b) for a, b in forward.items() if backward.get(b) == a)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING if binary else cv2.NORM_L2)
+    pairs = [
+        (pair[0].queryIdx, pair[0].trainIdx)
+        for pair in matcher.knnMatch(descriptors_a, descriptors_b, k=2)
+        if len(pair) == 2
+        and (ratio >= 1.0 or pair[0].distance < ratio * pair[1].distance)
+        and (max_distance <= 0 or pair[0].distance <= max_distance)
+    ]
     if not pairs:
         return EMPTY, EMPTY
     a_index, b_index = zip(*pairs, strict=True)
     return np.asarray(a_index, np.intp), np.asarray(b_index, np.intp)
+
+
+def match_mutual(
+    descriptors_a: NDArray[Any], descriptors_b: NDArray[Any], ratio: float, max_distance: float = 0.0
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Matches a → b that pass the ratio test (:func:`match_ratio`) and are each other's nearest neighbour."""
+    if len(descriptors_a) < 2 or len(descriptors_b) < 2:
+        return EMPTY, EMPTY
+    # The ratio test one way and a plain nearest-neighbour cross-check the other: requiring the ratio both ways
+    # lost half of the true correspondences between two views of the plant's start (21 instead of 27).
+    forward = match_ratio(descriptors_a, descriptors_b, ratio, max_distance)
+    backward = dict(zip(*match_ratio(descriptors_b, descriptors_a, 1.0, max_distance), strict=True))
+    keep = np.array([backward.get(int(b)) == int(a) for a, b in zip(*forward, strict=True)], dtype=bool)
+    if not keep.any():
+        return EMPTY, EMPTY
+    return forward[0][keep], forward[1][keep]

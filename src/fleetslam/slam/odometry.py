@@ -23,7 +23,7 @@ from fleetslam.datasets.base import Intrinsics
 from fleetslam.geometry import invert, planar_camera_pose, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
-from fleetslam.slam.matching import match_by_projection
+from fleetslam.slam.matching import match_by_projection, match_ratio
 from fleetslam.slam.pose_refinement import planar_basis, refine_pose_with_prior
 
 logger = logging.getLogger(__name__)
@@ -122,14 +122,12 @@ class VisualOdometry:
         base_camera: NDArray[np.float64] | None = None,
     ) -> None:
         """``base_camera`` (T_base_camera) enables ``config.planar_motion``; it may also be set later."""
-        cv2 = import_cv2()
         self.config = config
         self.intrinsics = intrinsics
         fc = features if features is not None else FeatureConfig.model_validate({})
         self.extractor = FeatureExtractor(
             fc.kind, fc.max_features, fc.grid_rows, fc.grid_cols, fc.orb_fast_threshold, fc.orb_levels
         )
-        self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING if self.extractor.binary else cv2.NORM_L2)
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
         self.pose = np.eye(4)
@@ -282,13 +280,7 @@ class VisualOdometry:
                 self.config.max_descriptor_distance if self.extractor.binary else 0.0,
             )
             return q, front[t]
-        knn = self._matcher.knnMatch(feats.descriptors, self.local_map.descriptors, k=2)
-        ratio = self.config.match_ratio
-        pairs = [(p[0].queryIdx, p[0].trainIdx) for p in knn if len(p) == 2 and p[0].distance < ratio * p[1].distance]
-        if not pairs:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        q_index, t_index = zip(*pairs, strict=True)
-        return np.asarray(q_index, np.intp), np.asarray(t_index, np.intp)
+        return match_ratio(feats.descriptors, self.local_map.descriptors, self.config.match_ratio)
 
     def _solve(
         self,
