@@ -286,7 +286,7 @@ def _write_trajectories(
     trajectories: dict[str, list[tuple[float, Any]]], robots: list[str], out_dir: Path, extrinsics: dict[str, Any]
 ) -> dict[str, float]:
     """TUM files of every robot's SLAM and ground-truth camera trajectory, and the ATE (m) of each."""
-    from fleetslam.geometry import pose_from_quat
+    from fleetslam.middleware.conversions import pose_matrix
     from fleetslam.trajectory import Trajectory, write_tum
 
     ate: dict[str, float] = {}
@@ -294,9 +294,7 @@ def _write_trajectories(
         tracks = {}
         for kind, folder in (("slam", "trajectories"), ("truth", "ground_truth")):
             samples = trajectories.get(f"{robot}/{kind}", [])
-            poses = [pose_from_quat([p.position.x, p.position.y, p.position.z],
-                                    [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w])
-                     for _, p in samples]  # fmt: skip
+            poses = [pose_matrix(p) for _, p in samples]
             if kind == "truth" and robot in extrinsics:  # base_link ground truth → camera optical frame
                 poses = [p @ extrinsics[robot] for p in poses]
             tracks[kind] = Trajectory.from_lists([t for t, _ in samples], poses)
