@@ -151,3 +151,17 @@ def test_transfer_by_time_budget_with_injected_clock() -> None:
     # Over budget, every keyframe with a transferable WM location transfers 1 + (locations retrieved).
     assert all(len(t) >= 1 for t in over[3:])
     assert max(wm_over) <= 3 < max(wm_within)
+
+
+def test_bag_of_words_weights_are_tf_idf() -> None:
+    memory, _ = filled_memory(6)
+    words, weights = memory.bag_of_words(3)
+    signature = memory.signatures[3]
+    assert len(words) == len(np.unique(signature.word_ids)) and len(weights) == len(words)
+    word = int(words[0])
+    occurrences = int(np.count_nonzero(signature.word_ids == word))
+    references = len(memory.vocabulary.references(word))
+    expected = occurrences / signature.word_ids.size * np.log10(len(memory.signatures) / references)
+    assert weights[0] == pytest.approx(expected)
+    assert np.all(weights >= 0)
+    assert memory.bag_of_words(999)[0].size == 0

@@ -216,6 +216,17 @@ class Memory:
                     scores[location_id] += occurrences / self.signatures[location_id].word_ids.size * idf
         return scores
 
+    def bag_of_words(self, location_id: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """A location's words and their TF-IDF weights ``(n_w / n) · log10(N / N_w)``: n_w its occurrences of
+        w, n its word count, N every location in memory, N_w those referencing w. Empty when unknown."""
+        signature = self.signatures.get(location_id)
+        if signature is None or signature.word_ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        words, counts = np.unique(signature.word_ids[signature.word_ids >= 0], return_counts=True)
+        locations = max(len(self.signatures), 1)
+        idf = np.array([math.log10(locations / max(len(self.vocabulary.references(int(w))), 1)) for w in words])
+        return words, counts / signature.word_ids.size * idf
+
     # ------------------------------------------------------------------ transfer and retrieval
     def retrieval_candidates(self, around_id: int, max_count: int | None = None) -> list[int]:
         """LTM locations nearest to ``around_id`` through links (breadth first, then lowest id)."""

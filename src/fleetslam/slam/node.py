@@ -259,18 +259,9 @@ class SlamNode:
 
     def bag_of_words(self, keyframe_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Word ids and TF-IDF weights of a keyframe's location (empty without the loop-closure side)."""
-        empty = np.zeros(0, np.uint32), np.zeros(0, np.float32)
         if self.pipeline is None or self.pipeline.detector is None:
-            return empty
-        memory = self.pipeline.detector.memory
-        signature = memory.signatures.get(keyframe_id)
-        if signature is None or signature.word_ids.size == 0:
-            return empty
-        words, counts = np.unique(signature.word_ids[signature.word_ids >= 0], return_counts=True)
-        locations = max(len(memory.signatures), 1)
-        vocabulary = memory.vocabulary
-        idf = np.array([np.log10(locations / max(len(vocabulary.references(int(w))), 1)) for w in words])
-        weights = counts / signature.word_ids.size * idf
+            return np.zeros(0, np.uint32), np.zeros(0, np.float32)
+        words, weights = self.pipeline.detector.memory.bag_of_words(keyframe_id)
         return words.astype(np.uint32), weights.astype(np.float32)
 
     def publish_keyframe(self, stamp_ns: int, step: StepResult, frame: RGBDFrame) -> None:
