@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fleetslam.mapping.keys import TREE_MAX_VAL
+from fleetslam.mapping.keys import TREE_MAX_VAL, unpack
 from fleetslam.mapping.octree import OccupancyOctree
-from fleetslam.mapping.raycast import ray_keys
+from fleetslam.mapping.raycast import ray_keys, scan_keys
 
 octomap = pytest.importorskip("octomap")
 
@@ -43,6 +43,24 @@ def test_single_rays_match_octomap() -> None:
         ours = {tuple(int(v) for v in k) for k in ray_keys(o, e, res)}
         assert ours == octomap_free_keys(o, e, res)
         assert len(ours) == len(ray_keys(o, e, res))  # each key once along one ray
+
+
+def test_batch_walk_matches_octomap_on_ties() -> None:
+    """Diagonal and axis-aligned rays, from voxel corners and borders: ties between the axes' tMax decide which
+    cells a ray crosses, and long rays take the batch walk's branch-free slabs, whose tie rules must be
+    OctoMap's. Each ray alone, so that no other ray covers a wrongly chosen cell."""
+    res = 0.05
+    steps = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    directions = np.array([(x, y, z) for x in steps for y in steps for z in steps if (x, y, z) != (0, 0, 0)])
+    origins = [np.zeros(3), np.full(3, 0.025), np.array([0.05, -0.1, 0.15]), np.array([-0.3, 0.2, 0.011])]
+    mismatches = []
+    for origin in origins:
+        for end in (origin + directions * 1.3).astype(np.float32):
+            free, _, _ = scan_keys(end[None], origin.astype(np.float32), res, -1.0)
+            ours = {tuple(int(v) for v in k) for k in unpack(free)}
+            if ours != octomap_free_keys(origin.astype(np.float32), end, res):
+                mismatches.append((origin.tolist(), end.tolist()))
+    assert not mismatches, f"{len(mismatches)} rays differ, e.g. {mismatches[:3]}"
 
 
 def test_ray_with_out_of_range_end_is_empty() -> None:

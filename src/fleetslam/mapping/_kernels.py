@@ -198,7 +198,7 @@ def ray_ends(points, origin, resolution, maxrange):  # type: ignore[no-untyped-d
     return ends, occupied
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
     """One pass over a scan: status per point (0 used, 1 non-finite, 2 outside the key range), ray ends (cut at
     maxrange), occupied keys (packed or EMPTY) and the key bounding box of origin and ends."""
@@ -248,17 +248,17 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
 
 
 @njit(cache=True, parallel=True)
-def trace_into_grid(ends, status, origin, resolution, lo, dims, threads):  # type: ignore[no-untyped-def]
+def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies):  # type: ignore[no-untyped-def]
     """Mark every free key of every used ray in a dense grid over [lo, lo + dims) (1 = free).
 
-    computeRayKeys specialised for the grid: the key walks as a linear grid index (so "reached the end key" is
-    one comparison), and a cell is written only on its first visit, so the threads do not fight over the cache
-    lines near the sensor that every ray crosses. The caller's box has a margin of 2 keys around the origin and
-    all ends, more than DDA round-off can overshoot.
+    The threads write into ``copies`` private grids (OR-ed at the end): rays near the sensor all cross the same
+    cells, and shared cache lines written by both cores cost more than the second grid. The caller's box has a
+    margin of 2 keys around the origin and all ends, more than DDA round-off can overshoot.
     """
     factor = 1.0 / resolution
     size = dims[0] * dims[1] * dims[2]
-    grid = np.zeros(size, dtype=np.uint8)
+    pad = dims[1] * dims[2] + dims[2] + 1
+    grids = np.zeros((copies, size + 2 * pad), dtype=np.uint8)
     ox, oy, oz = origin[0], origin[1], origin[2]
     kx0 = _coord_to_key(np.float64(ox), factor)
     ky0 = _coord_to_key(np.float64(oy), factor)
@@ -276,19 +276,33 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims, threads):  # typ
     block = (n + lanes - 1) // lanes
     for lane in prange(lanes):
         b = (lane % per) * threads + lane // per
+        grid = grids[(lane // per) % copies]
         for i in range(b * block, min(n, (b + 1) * block)):
             _trace_one_into_grid(
-                grid, size, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo,
+                grid, size, pad, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo,
                 stride_x, stride_y,
             )  # fmt: skip
-    return grid
+    out = grids[0, pad : pad + size].copy()
+    for c in range(1, copies):
+        for j in prange(size):
+            out[j] |= grids[c, pad + j]
+    return out
 
 
 @njit(cache=True, inline="always")
 def _trace_one_into_grid(  # type: ignore[no-untyped-def]
-    grid, size, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo, stride_x, stride_y
+    grid, size, pad, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo, stride_x, stride_y
 ):
-    """One ray of :func:`trace_into_grid`."""
+    """One ray of :func:`trace_into_grid`: computeRayKeys with the key as a linear grid index (cell c at
+    ``grid[pad + c]``), so "reached the end key" is one comparison.
+
+    The axes are renamed A, B, C with A the one of smallest tDelta, so that A steps once per A-slab and B and C
+    at most once each, barring round-off. While the next A step neither lands in the end key's A-slab nor takes
+    tMax_A past the ray's length, nothing can stop the walk within the slab: its (up to) three cells are then
+    chosen by comparisons without branches (:func:`_walk_slabs`), which the branch predictor cannot miss — the
+    cost of the plain walk is mostly mispredicted axis choices. The plain walk finishes the ray from the last
+    slab, or from any slab with a tie or where round-off makes B or C step twice, which keeps the result exact.
+    """
     if status[i] != 0:
         return
     ex, ey, ez = ends[i, 0], ends[i, 1], ends[i, 2]
@@ -300,8 +314,7 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     if kx0 == end_x and ky0 == end_y and kz0 == end_z:
         return
     end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
-    if grid[start] == 0:
-        grid[start] = 1
+    grid[start + pad] = 1
     dx = np.float32(ex - ox)
     dy = np.float32(ey - oy)
     dz = np.float32(ez - oz)
@@ -314,29 +327,87 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     iy = sy * stride_y
     iz = sz
     length64 = np.float64(length)
-    index = start
+    usize = np.uint64(size)
+    # OctoMap breaks ties in tMax towards z, then y, then x; B and C keep x-y-z order, so C wins ties with B.
+    if tdx <= tdy and tdx <= tdz:
+        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmx, tdx, ix, tmy, tdy, iy, tmz, tdz, iz
+        b_wins_a, c_wins_a = True, True
+        slabs = (end_x - kx0) * sx - 1
+    elif tdy <= tdz:
+        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmy, tdy, iy, tmx, tdx, ix, tmz, tdz, iz
+        b_wins_a, c_wins_a = False, True
+        slabs = (end_y - ky0) * sy - 1
+    else:
+        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmz, tdz, iz, tmx, tdx, ix, tmy, tdy, iy
+        b_wins_a, c_wins_a = False, False
+        slabs = (end_z - kz0) * sz - 1
+    index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length64, tA, dA, iA, tB, dB, iB, tC, dC, iC)
+    if not ok:
+        return
     while True:
-        if tmx < tmy:
-            if tmx < tmz:
-                index += ix
-                tmx += tdx
+        if _before(tB, tA, b_wins_a):
+            if tC <= tB:
+                index += iC
+                tC += dC
             else:
-                index += iz
-                tmz += tdz
-        elif tmy < tmz:
-            index += iy
-            tmy += tdy
+                index += iB
+                tB += dB
+        elif _before(tC, tA, c_wins_a):
+            index += iC
+            tC += dC
         else:
-            index += iz
-            tmz += tdz
+            index += iA
+            tA += dA
         if index == end_index:
+            return
+        if min(min(tA, tB), tC) > length64:
+            return
+        if np.uint64(index) >= usize:
+            return  # memory guard only; the margin makes it unreachable
+        grid[np.uint64(index + pad)] = 1
+
+
+@njit(cache=True, inline="always")
+def _before(t1, t2, wins_tie):  # type: ignore[no-untyped-def]
+    """Whether the axis at tMax t1 steps before the one at t2 (``wins_tie``: it does when they are equal)."""
+    return (t1 < t2) | (wins_tie & (t1 == t2))
+
+
+@njit(cache=True, inline="always")
+def _walk_slabs(grid, usize, pad, index, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC):  # type: ignore[no-untyped-def]
+    """Up to ``slabs`` whole A-slabs of :func:`_trace_one_into_grid`, without branches on the axis order.
+
+    Returns the walk's state and False when a cell left the grid (memory guard). Stops early, state intact,
+    where the plain walk must take over: at a step past the length, when B or C would step twice, and at an
+    exact tie of tMax_B or tMax_C with tMax_A (the minor axis does not step, so its tMax stays equal to tMax_A):
+    the plain walk applies OctoMap's tie rules.
+    """
+    while slabs > 0:
+        tA_next = tA + dA
+        if tA_next > length:
             break
-        if min(min(tmx, tmy), tmz) > length64:
+        b_steps = tB < tA
+        c_steps = tC < tA
+        tB_next = tB + dB if b_steps else tB
+        tC_next = tC + dC if c_steps else tC
+        if (tB_next <= tA) | (tC_next <= tA):
             break
-        if index < 0 or index >= size:
-            break  # memory guard only; the margin makes it unreachable
-        if grid[index] == 0:
-            grid[index] = 1
+        step_b = iB if b_steps else 0
+        step_c = iC if c_steps else 0
+        # The cell after the first minor step (B first unless C is earlier or tied); when only one minor axis
+        # steps, "first" may name the other one, whose step is 0: the walk's current cell, marked already.
+        first = index + (step_b if tB < tC else step_c)
+        both = index + step_b + step_c
+        after_a = both + iA
+        if np.uint64(after_a) >= usize:
+            return index, tA, tB, tC, False  # cells one step from a grid cell stay within the padding
+        grid[np.uint64(first + pad)] = 1
+        grid[np.uint64(both + pad)] = 1
+        grid[np.uint64(after_a + pad)] = 1
+        index = after_a
+        tA, tB, tC = tA_next, tB_next, tC_next
+        slabs -= 1
+    return index, tA, tB, tC, True
 
 
 @njit(cache=True)
@@ -529,6 +600,25 @@ def table_update(keys, values, updates, deltas, base_values, has_base, clamp_min
         values[i] = value
         touched[j] = True
     return added, updates.shape[0]
+
+
+@njit(cache=True)
+def table_rehash(keys, values, new_keys, new_values):  # type: ignore[no-untyped-def]
+    """Insert the table's entries into an empty table (``new_keys`` all EMPTY, a power-of-two size).
+
+    The caller allocates the new table with NumPy, which asks the kernel for huge pages: page faults of a
+    fresh multi-megabyte table cost more than the insertions.
+    """
+    mask = np.uint64(new_keys.shape[0] - 1)
+    for i in range(keys.shape[0]):
+        key = keys[i]
+        if key == EMPTY:
+            continue
+        j = _slot(key, mask)
+        while new_keys[j] != EMPTY:
+            j = (j + 1) & np.int64(mask)
+        new_keys[j] = key
+        new_values[j] = values[i]
 
 
 @njit(cache=True)

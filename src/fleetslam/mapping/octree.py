@@ -110,11 +110,9 @@ class OccupancyOctree:
         capacity = self._keys.shape[0]
         while needed * 2 > capacity:
             capacity *= 2
-        occupied = self._keys != K.EMPTY
-        keys, values = self._keys[occupied], self._values[occupied]
-        self._keys = np.full(capacity, K.EMPTY, dtype=np.uint64)
-        self._values = np.zeros(capacity, dtype=np.float32)
-        K.table_set(self._keys, self._values, keys, values)
+        keys, values = np.full(capacity, K.EMPTY, dtype=np.uint64), np.empty(capacity, dtype=np.float32)
+        K.table_rehash(self._keys, self._values, keys, values)
+        self._keys, self._values = keys, values
 
     def _update_table(
         self, updates: NDArray[np.uint64], deltas: NDArray[np.float32], base: NDArray[np.float32],

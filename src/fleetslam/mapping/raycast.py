@@ -18,6 +18,8 @@ from fleetslam.mapping.keys import TREE_MAX_VAL, coords_to_keys, unpack
 
 #: Largest scan-local dense grid (cells = bytes); bigger scans deduplicate by sorting instead.
 MAX_GRID_CELLS = 256 * 1024 * 1024
+#: Memory for the threads' private copies of the grid (each thread writes its own where they fit).
+MAX_GRID_COPIES_BYTES = 512 * 1024 * 1024
 _EMPTY_KEYS = np.zeros(0, np.uint64)
 
 
@@ -49,8 +51,12 @@ def scan_keys(
     lo = np.maximum(np.minimum(lo, origin_key[0]) - 2, 0)
     hi = np.minimum(np.maximum(hi, origin_key[0]) + 2, 2 * TREE_MAX_VAL - 1)
     dims = (hi - lo + 1).astype(np.int64)
-    if int(np.prod(dims)) <= MAX_GRID_CELLS:
-        grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims, numba.get_num_threads())
+    cells = int(np.prod(dims))
+    if cells <= MAX_GRID_CELLS:
+        threads = numba.get_num_threads()
+        padded = cells + 2 * int(dims[1] * dims[2] + dims[2] + 1)
+        copies = max(1, min(threads, MAX_GRID_COPIES_BYTES // padded))
+        grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
         K.mark_occupied(grid, occupied, lo, dims)
         free, occ = K.collect_grid(grid, lo, dims)
         return free, occ, status
