@@ -24,7 +24,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from fleetslam.errors import MapFileError
 from fleetslam.mapping import _kernels as K
-from fleetslam.mapping.keys import TREE_DEPTH, TREE_MAX_VAL, coords_to_keys, node_centers, pack, unpack
+from fleetslam.mapping import _prune_kernels as P
+from fleetslam.mapping.keys import (
+    TREE_DEPTH,
+    TREE_MAX_VAL,
+    coords_to_keys,
+    morton,
+    node_centers,
+    pack,
+    unmorton,
+    unpack,
+)
 from fleetslam.mapping.leaves import LeafArrays
 from fleetslam.mapping.raycast import cast_ray, scan_keys
 
@@ -133,10 +143,6 @@ class OccupancyOctree:
                 return touched
             self._reserve(len(updates) - start)
 
-    def _fine_items(self) -> tuple[NDArray[np.uint64], NDArray[np.float32]]:
-        occupied = self._keys != K.EMPTY
-        return self._keys[occupied], self._values[occupied]
-
     # -- insertion -------------------------------------------------------------------------------------------
     def insert_point_cloud(
         self, points: ArrayLike, origin: ArrayLike, max_range: float = -1.0, discretize: bool = False
@@ -241,10 +247,10 @@ class OccupancyOctree:
     # -- canonical structure ------------------------------------------------------------------------------------
     def _canonical(self) -> _Structure:
         if self._structure is None:
-            fine_keys, fine_values = self._fine_items()
+            fine_morton, fine_values = P.table_morton(self._keys, self._values)
             items = list(self._coarse.items())
-            self._structure = canonical_structure(
-                fine_keys,
+            self._structure = _collapse(
+                fine_morton,
                 fine_values,
                 np.array([d for (d, _), _ in items], np.int64),
                 np.array([c for (_, c), _ in items], np.uint64),
@@ -511,83 +517,22 @@ def canonical_structure(
 
     ``fine_keys`` are packed finest keys; coarse leaves are given by depth, packed key at that depth, value.
     """
-    # Work per level with keys scaled to that level: level d holds codes at depth d.
-    leaf_keys: dict[int, NDArray[np.uint64]] = {}
-    leaf_vals: dict[int, NDArray[np.float32]] = {}
-    by_depth: dict[int, tuple[NDArray[np.uint64], NDArray[np.float32]]] = {
-        int(d): (coarse_codes[coarse_depths == d], coarse_values[coarse_depths == d]) for d in np.unique(coarse_depths)
-    }
-    current_keys = fine_keys.astype(np.uint64)
-    current_vals = fine_values.astype(np.float32)
-    mask16 = np.uint64(0xFFFF)
-    inner_count = 0
-    inner_codes = np.zeros(0, np.uint64)  # inner nodes at the level being processed
-    for depth in range(TREE_DEPTH, 0, -1):
-        extra = by_depth.get(depth)
-        if extra is not None:
-            current_keys = np.concatenate([current_keys, extra[0]])
-            current_vals = np.concatenate([current_vals, extra[1].astype(np.float32)])
-        # Parent codes of leaves at this depth.
-        x = (current_keys >> np.uint64(32)) & mask16
-        y = (current_keys >> np.uint64(16)) & mask16
-        z = current_keys & mask16
-        parents = ((x >> np.uint64(1)) << np.uint64(32)) | ((y >> np.uint64(1)) << np.uint64(16)) | (z >> np.uint64(1))
-        collapse = np.zeros(len(current_keys), np.bool_)
-        new_parent_codes = np.zeros(0, np.uint64)
-        new_parent_vals = np.zeros(0, np.float32)
-        if len(current_keys):
-            order = np.argsort(parents)
-            p_sorted, v_sorted = parents[order], current_vals[order]
-            start = np.flatnonzero(np.concatenate(([True], p_sorted[1:] != p_sorted[:-1])))
-            uniq = p_sorted[start]
-            counts = np.diff(np.append(start, len(p_sorted)))
-            full = counts == 8
-            if full.any():
-                vmin = np.minimum.reduceat(v_sorted, start)
-                vmax = np.maximum.reduceat(v_sorted, start)
-                # Collapsible: 8 leaf children with exactly equal values and no inner sibling.
-                candidates = full & (vmin == vmax) & ~np.isin(uniq, _parents_of(inner_codes))
-                if candidates.any():
-                    new_parent_codes = uniq[candidates]
-                    new_parent_vals = vmin[candidates]
-                    collapse_sorted = np.repeat(candidates, counts)
-                    collapse[order] = collapse_sorted
-        kept_keys, kept_vals = current_keys[~collapse], current_vals[~collapse]
-        leaf_keys[depth], leaf_vals[depth] = kept_keys, kept_vals
-        inner_count += len(inner_codes)
-        # Inner nodes one level up: parents of kept leaves and of inner nodes, not collapsed.
-        up = np.unique(np.concatenate([_parents_of(kept_keys), _parents_of(inner_codes)]))
-        inner_codes = up
-        current_keys, current_vals = new_parent_codes, new_parent_vals
-    # Depth 0: the root is a leaf if everything collapsed into it (or a file said so), else an inner node.
-    root_leaf = by_depth.get(0)
-    if root_leaf is not None:
-        current_keys = np.concatenate([current_keys, root_leaf[0]])
-        current_vals = np.concatenate([current_vals, root_leaf[1].astype(np.float32)])
-    if len(current_keys):
-        leaf_keys[0], leaf_vals[0] = current_keys, current_vals
-    inner_count += len(inner_codes)
-    keys_list, depth_list, val_list = [], [], []
-    for depth, codes in leaf_keys.items():
-        if len(codes) == 0:
-            continue
-        shift = np.uint64(TREE_DEPTH - depth)
-        k = unpack(codes).astype(np.uint64) << shift
-        keys_list.append(k.astype(np.uint16))
-        depth_list.append(np.full(len(codes), depth, np.uint8))
-        val_list.append(leaf_vals[depth])
-    if not keys_list:
-        return _Structure(LeafArrays.empty(), 0)
-    leaves = LeafArrays.sorted(np.concatenate(keys_list), np.concatenate(depth_list), np.concatenate(val_list))
-    return _Structure(leaves, int(inner_count))
+    return _collapse(morton(unpack(fine_keys)), np.asarray(fine_values, np.float32), coarse_depths, coarse_codes,
+                     coarse_values)  # fmt: skip
 
 
-def _parents_of(codes: NDArray[np.uint64]) -> NDArray[np.uint64]:
-    if len(codes) == 0:
-        return codes
-    m = np.uint64(0xFFFF)
-    one = np.uint64(1)
-    x = ((codes >> np.uint64(32)) & m) >> one
-    y = ((codes >> np.uint64(16)) & m) >> one
-    z = (codes & m) >> one
-    return (x << np.uint64(32)) | (y << np.uint64(16)) | z
+def _collapse(
+    fine_morton: NDArray[np.uint64],
+    fine_values: NDArray[np.float32],
+    coarse_depths: NDArray[np.int64],
+    coarse_codes: NDArray[np.uint64],
+    coarse_values: NDArray[np.float32],
+) -> _Structure:
+    order = P.radix_argsort48(fine_morton)
+    coarse_morton = morton(unpack(coarse_codes)) if len(coarse_codes) else np.zeros(0, np.uint64)
+    coarse_order = np.lexsort((coarse_morton, coarse_depths))
+    codes, depths, values, inner = P.collapse_levels(
+        fine_morton[order], fine_values[order], coarse_morton[coarse_order],
+        np.asarray(coarse_depths, np.int64)[coarse_order], np.asarray(coarse_values, np.float32)[coarse_order],
+    )  # fmt: skip
+    return _Structure(LeafArrays(unmorton(codes), depths, values), int(inner))

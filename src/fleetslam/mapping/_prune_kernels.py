@@ -1,0 +1,171 @@
+"""Numba kernels of the canonical (maximally pruned) tree: table compaction, Morton radix sort, and the bottom-up
+collapse of equal siblings, level by level over Morton-sorted arrays.
+
+A node's children are a contiguous run of the Morton-sorted codes one level down (the code without its last
+three bits is the parent's), so every level is one linear pass; no tree of pointers is built.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fleetslam.errors import MissingExtraError
+from fleetslam.mapping._kernels import EMPTY
+
+try:
+    from numba import njit
+except ImportError as err:  # pragma: no cover - exercised only without the extra
+    raise MissingExtraError("numba", "mapping") from err
+
+TREE_DEPTH = 16
+
+
+@njit(cache=True, inline="always")
+def _spread3(v):  # type: ignore[no-untyped-def]
+    v = v & np.uint64(0xFFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return v
+
+
+@njit(cache=True)
+def table_morton(keys, values):  # type: ignore[no-untyped-def]
+    """Morton codes (x → bit 0, y → bit 1, z → bit 2 of each triple) and values of the table's filled slots."""
+    n = 0
+    for i in range(keys.shape[0]):
+        if keys[i] != EMPTY:
+            n += 1
+    codes = np.empty(n, dtype=np.uint64)
+    out_values = np.empty(n, dtype=np.float32)
+    j = 0
+    mask = np.uint64(0xFFFF)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        if k == EMPTY:
+            continue
+        x = (k >> np.uint64(32)) & mask
+        y = (k >> np.uint64(16)) & mask
+        z = k & mask
+        codes[j] = _spread3(x) | (_spread3(y) << np.uint64(1)) | (_spread3(z) << np.uint64(2))
+        out_values[j] = values[i]
+        j += 1
+    return codes, out_values
+
+
+@njit(cache=True)
+def radix_argsort48(codes):  # type: ignore[no-untyped-def]
+    """The order that sorts 48-bit codes ascending (stable): LSD radix sort, three 16-bit digits."""
+    n = codes.shape[0]
+    order = np.arange(n)
+    keys = codes.copy()
+    next_order = np.empty(n, dtype=np.int64)
+    next_keys = np.empty(n, dtype=np.uint64)
+    counts = np.empty(65536 + 1, dtype=np.int64)
+    for shift in (0, 16, 32):
+        s = np.uint64(shift)
+        counts[:] = 0
+        for i in range(n):
+            counts[np.int64((keys[i] >> s) & np.uint64(0xFFFF)) + 1] += 1
+        for digit in range(65536):
+            counts[digit + 1] += counts[digit]
+        for i in range(n):
+            d = np.int64((keys[i] >> s) & np.uint64(0xFFFF))
+            j = counts[d]
+            counts[d] = j + 1
+            next_keys[j] = keys[i]
+            next_order[j] = order[i]
+        keys, next_keys = next_keys, keys
+        order, next_order = next_order, order
+    return order
+
+
+@njit(cache=True)
+def collapse_levels(fine_codes, fine_values, coarse_codes, coarse_depths, coarse_values):  # type: ignore[no-untyped-def]
+    """Canonical pruning: OctoMap's pruneNode (8 children, all leaves, equal values) applied bottom-up.
+
+    ``fine_codes`` are sorted finest Morton codes; coarse leaves are given by their Morton code at their own depth,
+    sorted by (depth, code). Returns the final leaves — Morton code of their min corner at the finest level,
+    depth, value — in pre-order, and the number of inner nodes (each counted where a run of children that does
+    not collapse makes its parent).
+    """
+    n_total = fine_codes.shape[0] + coarse_codes.shape[0]
+    out_codes = np.empty(n_total, dtype=np.uint64)
+    out_depths = np.empty(n_total, dtype=np.uint8)
+    out_values = np.empty(n_total, dtype=np.float32)
+    n_out = 0
+    inner = 0
+    level_codes = fine_codes
+    level_values = fine_values
+    level_leaf = np.ones(fine_codes.shape[0], dtype=np.bool_)
+    c = coarse_codes.shape[0]
+    next_coarse = c - 1  # coarse leaves are taken from the deepest (the end of the list) up
+    depth = TREE_DEPTH
+    while True:
+        # Merge the coarse leaves of this depth into the level (both sorted).
+        first = next_coarse
+        while first >= 0 and coarse_depths[first] == depth:
+            first -= 1
+        if first < next_coarse:
+            extra = next_coarse - first
+            m = level_codes.shape[0]
+            merged_codes = np.empty(m + extra, dtype=np.uint64)
+            merged_values = np.empty(m + extra, dtype=np.float32)
+            merged_leaf = np.empty(m + extra, dtype=np.bool_)
+            i, j, k = 0, first + 1, 0
+            while i < m or j <= next_coarse:
+                if j > next_coarse or (i < m and level_codes[i] < coarse_codes[j]):
+                    merged_codes[k], merged_values[k], merged_leaf[k] = level_codes[i], level_values[i], level_leaf[i]
+                    i += 1
+                else:
+                    merged_codes[k], merged_values[k], merged_leaf[k] = coarse_codes[j], coarse_values[j], True
+                    j += 1
+                k += 1
+            level_codes, level_values, level_leaf = merged_codes, merged_values, merged_leaf
+            next_coarse = first
+        m = level_codes.shape[0]
+        if depth == 0:  # the root: a leaf if everything collapsed into it, else counted as inner at depth 1
+            for i in range(m):
+                if level_leaf[i]:
+                    out_codes[n_out], out_depths[n_out], out_values[n_out] = 0, 0, level_values[i]
+                    n_out += 1
+            break
+        # Parents: one per run of equal code >> 3.
+        parent_codes = np.empty(m, dtype=np.uint64)
+        parent_values = np.empty(m, dtype=np.float32)
+        parent_leaf = np.empty(m, dtype=np.bool_)
+        n_parents = 0
+        shift = np.uint64(3 * (TREE_DEPTH - depth))
+        start = 0
+        while start < m:
+            parent = level_codes[start] >> np.uint64(3)
+            end = start + 1
+            while end < m and (level_codes[end] >> np.uint64(3)) == parent:
+                end += 1
+            collapse = end - start == 8
+            if collapse:
+                value = level_values[start]
+                for i in range(start, end):
+                    if not level_leaf[i] or level_values[i] != value:
+                        collapse = False
+                        break
+            parent_codes[n_parents] = parent
+            parent_values[n_parents] = level_values[start]
+            parent_leaf[n_parents] = collapse
+            n_parents += 1
+            if not collapse:
+                inner += 1
+                for i in range(start, end):
+                    if level_leaf[i]:
+                        out_codes[n_out] = level_codes[i] << shift
+                        out_depths[n_out] = depth
+                        out_values[n_out] = level_values[i]
+                        n_out += 1
+            start = end
+        level_codes = parent_codes[:n_parents]
+        level_values = parent_values[:n_parents]
+        level_leaf = parent_leaf[:n_parents]
+        depth -= 1
+    order = radix_argsort48(out_codes[:n_out])
+    return out_codes[order], out_depths[order], out_values[order], inner
