@@ -28,10 +28,12 @@ DBL_MAX = 1.7976931348623157e308
 
 @njit(cache=True, inline="always")
 def _coord_to_key(coordinate: float, factor: float) -> int:
-    scaled = math.floor(factor * coordinate)
+    # Range check before the floor (⌊x⌋ ≥ n ⇔ x ≥ n for an integer n): NaN and huge values must not go through
+    # an integer conversion.
+    scaled = factor * coordinate
     if not (scaled >= -TREE_MAX_VAL and scaled < TREE_MAX_VAL):
         return -1
-    return int(scaled) + TREE_MAX_VAL
+    return math.floor(scaled) + TREE_MAX_VAL
 
 
 @njit(cache=True)
@@ -289,6 +291,34 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
     return out
 
 
+@njit(cache=True, parallel=True)
+def ray_starts(ends, status, origin, resolution, lo, dims):  # type: ignore[no-untyped-def]
+    """:func:`_ray_start` of every ray as arrays, for a walk elsewhere (the GPU): ``reals`` (N, 7) float64
+    (length, tA, dA, tB, dB, tC, dC), ``ints`` (N, 6) int64 (used, end cell, iA, iB, iC, fast slabs), ``ties`` (N, 2)
+    (B, C win ties with A), and the origin's cell."""
+    factor = 1.0 / resolution
+    n = ends.shape[0]
+    reals = np.empty((n, 7), dtype=np.float64)
+    ints = np.empty((n, 6), dtype=np.int64)
+    ties = np.empty((n, 2), dtype=np.bool_)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    kx0 = _coord_to_key(np.float64(ox), factor)
+    ky0 = _coord_to_key(np.float64(oy), factor)
+    kz0 = _coord_to_key(np.float64(oz), factor)
+    stride_x = dims[1] * dims[2]
+    stride_y = dims[2]
+    start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
+    for i in prange(n):
+        (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs) = _ray_start(
+            ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y
+        )
+        reals[i, 0], reals[i, 1], reals[i, 2], reals[i, 3] = length, tA, dA, tB
+        reals[i, 4], reals[i, 5], reals[i, 6] = dB, tC, dC
+        ints[i, 0], ints[i, 1], ints[i, 2], ints[i, 3], ints[i, 4], ints[i, 5] = ok, end_index, iA, iB, iC, slabs
+        ties[i, 0], ties[i, 1] = b_wins_a, c_wins_a
+    return reals, ints, ties, start
+
+
 @njit(cache=True, inline="always")
 def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     grid, size, pad, ends, status, i, ox, oy, oz, kx0, ky0, kz0, start, factor, resolution, lo, stride_x, stride_y
@@ -303,18 +333,26 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     cost of the plain walk is mostly mispredicted axis choices. The plain walk finishes the ray from the last
     slab, or from any slab with a tie or where round-off makes B or C step twice, which keeps the result exact.
     """
-    if status[i] != 0:
-        return
+    (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs) = _ray_start(
+        ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y
+    )
+    if ok:
+        _walk_ray(grid, size, pad, start, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a,
+                  slabs)  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _ray_start(ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y):  # type: ignore[no-untyped-def]
+    """computeRayKeys' initialisation for ray i, in the walk's terms: (used, end cell, length, then tMax, tDelta
+    and grid step of the axes A, B, C, the tie rules of B and C against A, and the number of fast A-slabs)."""
     ex, ey, ez = ends[i, 0], ends[i, 1], ends[i, 2]
     end_x = _coord_to_key(np.float64(ex), factor)
     end_y = _coord_to_key(np.float64(ey), factor)
     end_z = _coord_to_key(np.float64(ez), factor)
-    if end_x < 0 or end_y < 0 or end_z < 0:
-        return
-    if kx0 == end_x and ky0 == end_y and kz0 == end_z:
-        return
+    unused = status[i] != 0 or end_x < 0 or end_y < 0 or end_z < 0 or (kx0 == end_x and ky0 == end_y and kz0 == end_z)
+    if unused:
+        return False, 0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0, 0.0, 0.0, 0, False, False, 0
     end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
-    grid[start + pad] = 1
     dx = np.float32(ex - ox)
     dy = np.float32(ey - oy)
     dz = np.float32(ez - oz)
@@ -327,21 +365,20 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     iy = sy * stride_y
     iz = sz
     length64 = np.float64(length)
-    usize = np.uint64(size)
     # OctoMap breaks ties in tMax towards z, then y, then x; B and C keep x-y-z order, so C wins ties with B.
     if tdx <= tdy and tdx <= tdz:
-        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmx, tdx, ix, tmy, tdy, iy, tmz, tdz, iz
-        b_wins_a, c_wins_a = True, True
-        slabs = (end_x - kx0) * sx - 1
-    elif tdy <= tdz:
-        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmy, tdy, iy, tmx, tdx, ix, tmz, tdz, iz
-        b_wins_a, c_wins_a = False, True
-        slabs = (end_y - ky0) * sy - 1
-    else:
-        tA, dA, iA, tB, dB, iB, tC, dC, iC = tmz, tdz, iz, tmx, tdx, ix, tmy, tdy, iy
-        b_wins_a, c_wins_a = False, False
-        slabs = (end_z - kz0) * sz - 1
-    index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length64, tA, dA, iA, tB, dB, iB, tC, dC, iC)
+        return True, end_index, length64, tmx, tdx, ix, tmy, tdy, iy, tmz, tdz, iz, True, True, (end_x - kx0) * sx - 1
+    if tdy <= tdz:
+        return True, end_index, length64, tmy, tdy, iy, tmx, tdx, ix, tmz, tdz, iz, False, True, (end_y - ky0) * sy - 1
+    return True, end_index, length64, tmz, tdz, iz, tmx, tdx, ix, tmy, tdy, iy, False, False, (end_z - kz0) * sz - 1
+
+
+@njit(cache=True, inline="always")
+def _walk_ray(grid, size, pad, start, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs):  # type: ignore[no-untyped-def]
+    """The walk of one ray from :func:`_ray_start`'s state: only additions and comparisons."""
+    grid[start + pad] = 1
+    usize = np.uint64(size)
+    index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC)
     if not ok:
         return
     while True:
@@ -360,7 +397,7 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
             tA += dA
         if index == end_index:
             return
-        if min(min(tA, tB), tC) > length64:
+        if tA > length and tB > length and tC > length:  # min(...) > length, without builtins (CUDA)
             return
         if np.uint64(index) >= usize:
             return  # memory guard only; the margin makes it unreachable

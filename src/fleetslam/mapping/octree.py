@@ -78,6 +78,9 @@ class OccupancyOctree:
         prob_hit, prob_miss: sensor model.
         clamp_min, clamp_max: probability clamping thresholds.
         occupancy_threshold: probability from which a voxel is occupied.
+        accelerator: where scans' rays are walked: ``"cpu"``, ``"cuda"`` (a CUDA GPU, required), or ``"auto"``
+            (the GPU when numba finds one, else the CPU; a GPU failure falls back to the CPU). Results are
+            identical either way.
     """
 
     def __init__(
@@ -89,9 +92,15 @@ class OccupancyOctree:
         clamp_min: float = 0.1192,
         clamp_max: float = 0.971,
         occupancy_threshold: float = 0.5,
+        accelerator: str = "auto",
     ) -> None:
         if not resolution > 0 or not math.isfinite(resolution):
             raise ValueError(f"resolution must be a positive number, got {resolution}")
+        if accelerator not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"accelerator must be 'auto', 'cpu' or 'cuda', got {accelerator!r}")
+        if accelerator == "cuda" and not _cuda_available():
+            raise ValueError("accelerator 'cuda' needs a CUDA GPU, and numba finds none")
+        self.accelerator = accelerator
         for name, p in (("prob_hit", prob_hit), ("prob_miss", prob_miss), ("clamp_min", clamp_min),
                         ("clamp_max", clamp_max), ("occupancy_threshold", occupancy_threshold)):  # fmt: skip
             if not 0.0 < p < 1.0:
@@ -161,7 +170,7 @@ class OccupancyOctree:
             centres = (keys[valid][np.sort(first)] - TREE_MAX_VAL + 0.5) * self.resolution
             invalid = pts[~valid]
             pts = np.ascontiguousarray(np.vstack([centres.astype(np.float32), invalid]))
-        free, occ, status = scan_keys(pts, origin32, self.resolution, float(max_range))
+        free, occ, status = self._scan_keys(pts, origin32, float(max_range))
         n_nonfinite = int(np.count_nonzero(status == 1))
         n_out = int(np.count_nonzero(status == 2))
         if n_nonfinite or n_out:
@@ -169,6 +178,20 @@ class OccupancyOctree:
         self._apply(free, occ)
         used = len(pts) - n_nonfinite - n_out
         return InsertSummary(len(pts), used, n_nonfinite, n_out, len(free), len(occ))
+
+    def _scan_keys(
+        self, points: NDArray[np.float32], origin: NDArray[np.float32], max_range: float
+    ) -> tuple[NDArray[np.uint64], NDArray[np.uint64], NDArray[np.uint8]]:
+        if self.accelerator == "cpu" or not _cuda_available():
+            return scan_keys(points, origin, self.resolution, max_range)
+        try:
+            return scan_keys(points, origin, self.resolution, max_range, use_cuda=True)
+        except Exception as err:
+            if self.accelerator == "cuda":
+                raise
+            log.warning("GPU ray tracing failed (%s: %s); this map goes on with the CPU", type(err).__name__, err)
+            self.accelerator = "cpu"
+            return scan_keys(points, origin, self.resolution, max_range)
 
     def _apply(self, free: NDArray[np.uint64], occupied: NDArray[np.uint64]) -> None:
         updates = np.concatenate([free, occupied])
@@ -305,7 +328,7 @@ class OccupancyOctree:
     def copy(self) -> OccupancyOctree:
         other = OccupancyOctree(
             self.resolution, prob_hit=self.prob_hit, prob_miss=self.prob_miss, clamp_min=self.clamp_min,
-            clamp_max=self.clamp_max, occupancy_threshold=self.occupancy_threshold,
+            clamp_max=self.clamp_max, occupancy_threshold=self.occupancy_threshold, accelerator=self.accelerator,
         )  # fmt: skip
         other._keys, other._values, other._count = self._keys.copy(), self._values.copy(), self._count
         other._coarse = dict(self._coarse)
@@ -492,6 +515,12 @@ def _expand_to_finest(leaves: LeafArrays) -> tuple[NDArray[np.uint16], NDArray[n
         keys.append((leaves.keys[i].astype(np.int64) + grid).astype(np.uint16))
         values.append(np.full(len(grid), leaves.log_odds[i], np.float32))
     return np.concatenate(keys), np.concatenate(values)
+
+
+def _cuda_available() -> bool:
+    from fleetslam.mapping.cuda_trace import cuda_available
+
+    return cuda_available()
 
 
 def canonical_leaves(leaves: LeafArrays) -> tuple[LeafArrays, int]:

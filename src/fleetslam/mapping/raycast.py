@@ -2,7 +2,7 @@
 
 The batch path runs numba kernels over all rays in parallel (see :mod:`fleetslam.mapping._kernels`) and
 deduplicates through a dense scan-local byte grid, falling back to sorting when the scan spans too much space.
-A GPU path would replace :func:`scan_keys` only: it returns plain packed-key arrays.
+On a GPU (:mod:`fleetslam.mapping.cuda_trace`) only the walks into the grid move; the rest is shared.
 """
 
 from __future__ import annotations
@@ -36,12 +36,17 @@ def ray_keys(origin: ArrayLike, end: ArrayLike, resolution: float) -> NDArray[np
 
 
 def scan_keys(
-    points: NDArray[np.float32], origin: NDArray[np.float32], resolution: float, max_range: float
+    points: NDArray[np.float32],
+    origin: NDArray[np.float32],
+    resolution: float,
+    max_range: float,
+    use_cuda: bool = False,
 ) -> tuple[NDArray[np.uint64], NDArray[np.uint64], NDArray[np.uint8]]:
     """Packed free and occupied keys of one scan, each once, occupied winning (OctoMap's computeUpdate).
 
     ``points`` float32 ``(N, 3)`` C-contiguous, ``origin`` float32 ``(3,)`` inside the key range. Also returns
-    each point's status: 0 used, 1 not finite, 2 outside the key range (skipped).
+    each point's status: 0 used, 1 not finite, 2 outside the key range (skipped). ``use_cuda`` walks the rays on
+    the GPU (:mod:`fleetslam.mapping.cuda_trace`), with identical results.
     """
     status, ends, occupied, lo, hi = K.prepare_scan(points, origin, resolution, max_range)
     if not (status == 0).any():
@@ -52,6 +57,13 @@ def scan_keys(
     hi = np.minimum(np.maximum(hi, origin_key[0]) + 2, 2 * TREE_MAX_VAL - 1)
     dims = (hi - lo + 1).astype(np.int64)
     cells = int(np.prod(dims))
+    if cells <= MAX_GRID_CELLS and use_cuda:
+        from fleetslam.mapping.cuda_trace import trace_into_grid_cuda
+
+        grid = trace_into_grid_cuda(ends, status, origin, resolution, lo, dims)
+        K.mark_occupied(grid, occupied, lo, dims)
+        free, occ = K.collect_grid(grid, lo, dims)
+        return free, occ, status
     if cells <= MAX_GRID_CELLS:
         threads = numba.get_num_threads()
         padded = cells + 2 * int(dims[1] * dims[2] + dims[2] + 1)

@@ -1,0 +1,36 @@
+"""Compile the octree engine's numba kernels into their on-disk cache, so that the first scan of a mapping node
+does not wait for the compiler (about 20 s on two cores). ``scripts/setup`` runs it:
+
+    python -m fleetslam.mapping.warmup
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def compile_kernels() -> float:
+    """Run every kernel a mapping node uses once, on a small scan; returns the seconds it took."""
+    from fleetslam.mapping.octree import OccupancyOctree
+
+    start = time.perf_counter()
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(400, 3))
+    points = (directions / np.linalg.norm(directions, axis=1, keepdims=True) * 2.0).astype(np.float32)
+    tree = OccupancyOctree(0.05, accelerator="cpu")
+    tree.insert_point_cloud(points, np.zeros(3, np.float32))  # grows the table: every insertion kernel
+    tree.insert_point_cloud(points[:10], np.zeros(3, np.float32), max_range=1.0)
+    tree.num_nodes()  # the canonical structure's kernels
+    tree.prune()
+    tree.log_odds(points[0])
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    print(f"mapping kernels compiled in {compile_kernels():.1f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()
