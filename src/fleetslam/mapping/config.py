@@ -5,7 +5,7 @@ Defaults are OctoMap 1.10's library defaults (clamping 0.1192 / 0.971); octomap_
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, model_validator
 
@@ -38,6 +38,9 @@ class MappingConfig(ConfigModel):
     """Merge endpoints falling in one voxel and cast rays to voxel centres (OctoMap's discretize)."""
     prune_every: int = Field(default=0, ge=0)
     """Compact the store into the pruned tree every N scans (0: never; node counts are unaffected)."""
+    accelerator: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where rays are walked: the GPU when one is found ("auto"), always the CPU, or a required CUDA GPU; the map
+    is identical either way."""
 
     @model_validator(mode="after")
     def _clamps_ordered(self) -> MappingConfig:
@@ -60,4 +63,5 @@ def make_octree(config: MappingConfig) -> OccupancyOctree:
         clamp_min=config.clamp_min,
         clamp_max=config.clamp_max,
         occupancy_threshold=config.occupancy_threshold,
+        accelerator=config.accelerator,
     )
