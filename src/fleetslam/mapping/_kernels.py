@@ -249,6 +249,19 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
     return status, ends, occupied, lo, hi
 
 
+@njit(cache=True, inline="always")
+def _origin_cell(origin, factor, lo, dims):  # type: ignore[no-untyped-def]
+    """The sensor origin's coordinates and key, the grid's strides, and the origin's cell in the grid."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    kx0 = _coord_to_key(np.float64(ox), factor)
+    ky0 = _coord_to_key(np.float64(oy), factor)
+    kz0 = _coord_to_key(np.float64(oz), factor)
+    stride_x = dims[1] * dims[2]
+    stride_y = dims[2]
+    start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
+    return ox, oy, oz, kx0, ky0, kz0, stride_x, stride_y, start
+
+
 @njit(cache=True, parallel=True)
 def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies):  # type: ignore[no-untyped-def]
     """Mark every free key of every used ray in a dense grid over [lo, lo + dims) (1 = free).
@@ -261,13 +274,7 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
     size = dims[0] * dims[1] * dims[2]
     pad = dims[1] * dims[2] + dims[2] + 1
     grids = np.zeros((copies, size + 2 * pad), dtype=np.uint8)
-    ox, oy, oz = origin[0], origin[1], origin[2]
-    kx0 = _coord_to_key(np.float64(ox), factor)
-    ky0 = _coord_to_key(np.float64(oy), factor)
-    kz0 = _coord_to_key(np.float64(oz), factor)
-    stride_x = dims[1] * dims[2]
-    stride_y = dims[2]
-    start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
+    ox, oy, oz, kx0, ky0, kz0, stride_x, stride_y, start = _origin_cell(origin, factor, lo, dims)
     # prange gives each thread one contiguous part of its range, but a depth image's rays come row by row and
     # rows differ a lot in length (floor vs far wall): contiguous parts load the threads unevenly (1.6× instead
     # of 2× on two cores). So the rays go in blocks dealt round-robin: thread t (lanes t·per … t·per + per − 1)
@@ -301,13 +308,7 @@ def ray_starts(ends, status, origin, resolution, lo, dims):  # type: ignore[no-u
     reals = np.empty((n, 7), dtype=np.float64)
     ints = np.empty((n, 6), dtype=np.int64)
     ties = np.empty((n, 2), dtype=np.bool_)
-    ox, oy, oz = origin[0], origin[1], origin[2]
-    kx0 = _coord_to_key(np.float64(ox), factor)
-    ky0 = _coord_to_key(np.float64(oy), factor)
-    kz0 = _coord_to_key(np.float64(oz), factor)
-    stride_x = dims[1] * dims[2]
-    stride_y = dims[2]
-    start = (kx0 - lo[0]) * stride_x + (ky0 - lo[1]) * stride_y + (kz0 - lo[2])
+    ox, oy, oz, kx0, ky0, kz0, stride_x, stride_y, start = _origin_cell(origin, factor, lo, dims)
     for i in prange(n):
         (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs) = _ray_start(
             ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y

@@ -529,25 +529,11 @@ def canonical_leaves(leaves: LeafArrays) -> tuple[LeafArrays, int]:
     coarse_depths = leaves.depths[~fine].astype(np.int64)
     shifts = (TREE_DEPTH - coarse_depths).astype(np.uint64)[:, None]
     coarse_codes = pack(leaves.keys[~fine].astype(np.uint64) >> shifts) if (~fine).any() else np.zeros(0, np.uint64)
-    structure = canonical_structure(
-        pack(leaves.keys[fine]), leaves.log_odds[fine], coarse_depths, coarse_codes, leaves.log_odds[~fine]
-    )
+    structure = _collapse(
+        morton(leaves.keys[fine]), np.asarray(leaves.log_odds[fine], np.float32), coarse_depths, coarse_codes,
+        leaves.log_odds[~fine],
+    )  # fmt: skip
     return structure.leaves, structure.inner_count
-
-
-def canonical_structure(
-    fine_keys: NDArray[np.uint64],
-    fine_values: NDArray[np.float32],
-    coarse_depths: NDArray[np.int64],
-    coarse_codes: NDArray[np.uint64],
-    coarse_values: NDArray[np.float32],
-) -> _Structure:
-    """Canonical maximal pruning of a leaf field and its inner-node count.
-
-    ``fine_keys`` are packed finest keys; coarse leaves are given by depth, packed key at that depth, value.
-    """
-    return _collapse(morton(unpack(fine_keys)), np.asarray(fine_values, np.float32), coarse_depths, coarse_codes,
-                     coarse_values)  # fmt: skip
 
 
 def _collapse(
@@ -557,6 +543,8 @@ def _collapse(
     coarse_codes: NDArray[np.uint64],
     coarse_values: NDArray[np.float32],
 ) -> _Structure:
+    """Canonical maximal pruning of a leaf field and its inner-node count: finest leaves by Morton code, coarse
+    leaves by depth, packed key at that depth, and value."""
     order = P.radix_argsort48(fine_morton)
     coarse_morton = morton(unpack(coarse_codes)) if len(coarse_codes) else np.zeros(0, np.uint64)
     coarse_order = np.lexsort((coarse_morton, coarse_depths))
