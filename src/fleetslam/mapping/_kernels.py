@@ -301,22 +301,22 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
 @njit(cache=True, parallel=True)
 def ray_starts(ends, status, origin, resolution, lo, dims):  # type: ignore[no-untyped-def]
     """:func:`_ray_start` of every ray as arrays, for a walk elsewhere (the GPU): ``reals`` (N, 7) float64
-    (length, tA, dA, tB, dB, tC, dC), ``ints`` (N, 6) int64 (used, end cell, iA, iB, iC, fast slabs), ``ties`` (N, 2)
-    (B, C win ties with A), and the origin's cell."""
+    (length, tA, dA, tB, dB, tC, dC), ``ints`` (N, 6) int64 (used, end cell, iA, iB, iC, fast slabs), ``ties`` (N, 3)
+    (B, C win ties with A; no fast slab can pass the length), and the origin's cell."""
     factor = 1.0 / resolution
     n = ends.shape[0]
     reals = np.empty((n, 7), dtype=np.float64)
     ints = np.empty((n, 6), dtype=np.int64)
-    ties = np.empty((n, 2), dtype=np.bool_)
+    ties = np.empty((n, 3), dtype=np.bool_)
     ox, oy, oz, kx0, ky0, kz0, stride_x, stride_y, start = _origin_cell(origin, factor, lo, dims)
     for i in prange(n):
-        (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs) = _ray_start(
+        (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs, safe) = _ray_start(
             ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y
         )
         reals[i, 0], reals[i, 1], reals[i, 2], reals[i, 3] = length, tA, dA, tB
         reals[i, 4], reals[i, 5], reals[i, 6] = dB, tC, dC
         ints[i, 0], ints[i, 1], ints[i, 2], ints[i, 3], ints[i, 4], ints[i, 5] = ok, end_index, iA, iB, iC, slabs
-        ties[i, 0], ties[i, 1] = b_wins_a, c_wins_a
+        ties[i, 0], ties[i, 1], ties[i, 2] = b_wins_a, c_wins_a, safe
     return reals, ints, ties, start
 
 
@@ -334,12 +334,12 @@ def _trace_one_into_grid(  # type: ignore[no-untyped-def]
     cost of the plain walk is mostly mispredicted axis choices. The plain walk finishes the ray from the last
     slab, or from any slab with a tie or where round-off makes B or C step twice, which keeps the result exact.
     """
-    (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs) = _ray_start(
+    (ok, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs, safe) = _ray_start(
         ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, lo, stride_x, stride_y
     )
     if ok:
         _walk_ray(grid, size, pad, start, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a,
-                  slabs)  # fmt: skip
+                  slabs, safe)  # fmt: skip
 
 
 @njit(cache=True, inline="always")
@@ -352,7 +352,7 @@ def _ray_start(ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, l
     end_z = _coord_to_key(np.float64(ez), factor)
     unused = status[i] != 0 or end_x < 0 or end_y < 0 or end_z < 0 or (kx0 == end_x and ky0 == end_y and kz0 == end_z)
     if unused:
-        return False, 0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0, 0.0, 0.0, 0, False, False, 0
+        return False, 0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0, 0.0, 0.0, 0, False, False, 0, False
     end_index = (end_x - lo[0]) * stride_x + (end_y - lo[1]) * stride_y + (end_z - lo[2])
     dx = np.float32(ex - ox)
     dy = np.float32(ey - oy)
@@ -368,18 +368,45 @@ def _ray_start(ends, status, i, ox, oy, oz, kx0, ky0, kz0, factor, resolution, l
     length64 = np.float64(length)
     # OctoMap breaks ties in tMax towards z, then y, then x; B and C keep x-y-z order, so C wins ties with B.
     if tdx <= tdy and tdx <= tdz:
-        return True, end_index, length64, tmx, tdx, ix, tmy, tdy, iy, tmz, tdz, iz, True, True, (end_x - kx0) * sx - 1
+        slabs = (end_x - kx0) * sx - 1
+        safe = _slabs_within_length(tmx, tdx, slabs, length64)
+        return True, end_index, length64, tmx, tdx, ix, tmy, tdy, iy, tmz, tdz, iz, True, True, slabs, safe
     if tdy <= tdz:
-        return True, end_index, length64, tmy, tdy, iy, tmx, tdx, ix, tmz, tdz, iz, False, True, (end_y - ky0) * sy - 1
-    return True, end_index, length64, tmz, tdz, iz, tmx, tdx, ix, tmy, tdy, iy, False, False, (end_z - kz0) * sz - 1
+        slabs = (end_y - ky0) * sy - 1
+        safe = _slabs_within_length(tmy, tdy, slabs, length64)
+        return True, end_index, length64, tmy, tdy, iy, tmx, tdx, ix, tmz, tdz, iz, False, True, slabs, safe
+    slabs = (end_z - kz0) * sz - 1
+    safe = _slabs_within_length(tmz, tdz, slabs, length64)
+    return True, end_index, length64, tmz, tdz, iz, tmx, tdx, ix, tmy, tdy, iy, False, False, slabs, safe
 
 
 @njit(cache=True, inline="always")
-def _walk_ray(grid, size, pad, start, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs):  # type: ignore[no-untyped-def]
+def _slabs_within_length(tA, dA, slabs, length):  # type: ignore[no-untyped-def]
+    """Whether tMax_A stays within the length over all fast slabs, so that they need not test it.
+
+    The walk adds dA to tA at most ``slabs`` (< 2^16) times; each addition errs by at most half an ulp, so the sum
+    stays within 2^16 · 2^-53 · (|tA| + slabs·dA) < 10^-11 · (|tA| + slabs·dA) of the exact one. With a margin of
+    10^-9 of that this decides conservatively: a ray near the bound just keeps the test.
+    """
+    span = np.float64(slabs) * dA
+    magnitude = (tA if tA >= 0.0 else -tA) + span
+    return tA + span + magnitude * 1e-9 <= length
+
+
+@njit(cache=True, inline="always")
+def _walk_ray(  # type: ignore[no-untyped-def]
+    grid, size, pad, start, end_index, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, b_wins_a, c_wins_a, slabs, safe
+):
     """The walk of one ray from :func:`_ray_start`'s state: only additions and comparisons."""
     grid[start + pad] = 1
     usize = np.uint64(size)
-    index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC)
+    # Two compiled copies of the fast loop: without and (rarely) with the length test.
+    if safe:
+        index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC,
+                                            False)  # fmt: skip
+    else:
+        index, tA, tB, tC, ok = _walk_slabs(grid, usize, pad, start, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC,
+                                            True)  # fmt: skip
     if not ok:
         return
     while True:
@@ -412,7 +439,7 @@ def _before(t1, t2, wins_tie):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, inline="always")
-def _walk_slabs(grid, usize, pad, index, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC):  # type: ignore[no-untyped-def]
+def _walk_slabs(grid, usize, pad, index, slabs, length, tA, dA, iA, tB, dB, iB, tC, dC, iC, check_length):  # type: ignore[no-untyped-def]
     """Up to ``slabs`` whole A-slabs of :func:`_trace_one_into_grid`, without branches on the axis order.
 
     Returns the walk's state and False when a cell left the grid (memory guard). Stops early, state intact,
@@ -422,7 +449,7 @@ def _walk_slabs(grid, usize, pad, index, slabs, length, tA, dA, iA, tB, dB, iB, 
     """
     while slabs > 0:
         tA_next = tA + dA
-        if tA_next > length:
+        if check_length and tA_next > length:
             break
         b_steps = tB < tA
         c_steps = tC < tA

@@ -46,7 +46,7 @@ def _walk_kernel(grid, size, pad, start, reals, ints, ties):  # type: ignore[no-
         return
     K._walk_ray(
         grid, size, pad, start, ints[i, 1], reals[i, 0], reals[i, 1], reals[i, 2], ints[i, 2], reals[i, 3],
-        reals[i, 4], ints[i, 3], reals[i, 5], reals[i, 6], ints[i, 4], ties[i, 0], ties[i, 1], ints[i, 5],
+        reals[i, 4], ints[i, 3], reals[i, 5], reals[i, 6], ints[i, 4], ties[i, 0], ties[i, 1], ints[i, 5], ties[i, 2],
     )  # fmt: skip
 
 
