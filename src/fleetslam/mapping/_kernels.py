@@ -1,7 +1,8 @@
 """Numba kernels of the octree engine: OctoMap's exact ray keys in parallel, and an open-addressing voxel table.
 
-Only the ray tracing runs in parallel: on a shared 2-core machine every parallel region waits for a thread that
-may be descheduled, so the light passes (preparation, grid collection, table) stay serial.
+The ray tracing and the scan preparation run in parallel. The lighter passes (grid collection, table) stay
+serial: on a shared 2-core machine every parallel region waits for a thread that may be descheduled, and for
+them that wait costs more than the second core saves.
 
 Arithmetic mirrors OctoMap 1.10 line by line where it matters for exactness: points and directions are float32
 (``point3d``), ray lengths float32, tMax/tDelta float64, keys ⌊c·(1/res)⌋ + 32768 in float64.
