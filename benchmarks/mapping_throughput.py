@@ -3,7 +3,9 @@
 Prints one JSON line per input: points/s of both, the ratio, memory, and agreement (identical
 free/occupied/unknown state over the union of both trees' leaves, max log-odds difference, node counts).
 Inputs: OctoMap's real ``spherical_scan.graph`` and simulated Kinect-like depth scans of a box room.
-Numba compile (or cache load) time is excluded from the timings and reported as ``jit_warmup_s``.
+Numba compile (or cache load) time is excluded from the timings and reported as ``jit_warmup_s``. When numba
+finds a CUDA GPU, the same inserts run with the rays walked on it too (``gpu_*`` fields, including whether the map
+is the CPU's leaf for leaf); otherwise ``"gpu": null``.
 
     python benchmarks/mapping_throughput.py [--resolution 0.05] [--kinect-poses 3] [--graph-repeats 5]
 """
