@@ -251,6 +251,13 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
 
 
 @njit(cache=True, inline="always")
+def grid_padding(dims):  # type: ignore[no-untyped-def]
+    """Cells kept on each side of a trace grid (cell c at ``grid[pad + c]``): one step along every axis from any
+    cell of the grid stays inside the array."""
+    return dims[1] * dims[2] + dims[2] + 1
+
+
+@njit(cache=True, inline="always")
 def _origin_cell(origin, factor, lo, dims):  # type: ignore[no-untyped-def]
     """The sensor origin's coordinates and key, the grid's strides, and the origin's cell in the grid."""
     ox, oy, oz = origin[0], origin[1], origin[2]
@@ -273,7 +280,7 @@ def trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
     """
     factor = 1.0 / resolution
     size = dims[0] * dims[1] * dims[2]
-    pad = dims[1] * dims[2] + dims[2] + 1
+    pad = grid_padding(dims)
     grids = np.zeros((copies, size + 2 * pad), dtype=np.uint8)
     ox, oy, oz, kx0, ky0, kz0, stride_x, stride_y, start = _origin_cell(origin, factor, lo, dims)
     # prange gives each thread one contiguous part of its range, but a depth image's rays come row by row and

@@ -11,17 +11,17 @@ import numpy as np
 
 from fleetslam.errors import MissingExtraError
 from fleetslam.mapping._kernels import EMPTY
+from fleetslam.mapping.keys import TREE_DEPTH
 
 try:
     from numba import njit
 except ImportError as err:  # pragma: no cover - exercised only without the extra
     raise MissingExtraError("numba", "mapping") from err
 
-TREE_DEPTH = 16
-
 
 @njit(cache=True, inline="always")
 def _spread3(v):  # type: ignore[no-untyped-def]
+    # keys._spread3 on one 16-bit scalar (that one is NumPy array code for up to 21 bits).
     v = v & np.uint64(0xFFFF)
     v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
     v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)

@@ -66,7 +66,7 @@ def trace_into_grid_cuda(
     """GPU version of :func:`fleetslam.mapping._kernels.trace_into_grid`: the same grid (1 = free)."""
     reals, ints, ties, start = K.ray_starts(ends, status, origin, resolution, lo, dims)
     size = int(dims[0] * dims[1] * dims[2])
-    pad = int(dims[1] * dims[2] + dims[2] + 1)
+    pad = int(K.grid_padding(dims))
     grid = cuda.to_device(np.zeros(size + 2 * pad, np.uint8))
     n = ints.shape[0]
     if n:

@@ -57,18 +57,16 @@ def scan_keys(
     hi = np.minimum(np.maximum(hi, origin_key[0]) + 2, 2 * TREE_MAX_VAL - 1)
     dims = (hi - lo + 1).astype(np.int64)
     cells = int(np.prod(dims))
-    if cells <= MAX_GRID_CELLS and use_cuda:
-        from fleetslam.mapping.cuda_trace import trace_into_grid_cuda
-
-        grid = trace_into_grid_cuda(ends, status, origin, resolution, lo, dims)
-        K.mark_occupied(grid, occupied, lo, dims)
-        free, occ = K.collect_grid(grid, lo, dims)
-        return free, occ, status
     if cells <= MAX_GRID_CELLS:
-        threads = numba.get_num_threads()
-        padded = cells + 2 * int(dims[1] * dims[2] + dims[2] + 1)
-        copies = max(1, min(threads, MAX_GRID_COPIES_BYTES // padded))
-        grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
+        if use_cuda:
+            from fleetslam.mapping.cuda_trace import trace_into_grid_cuda
+
+            grid = trace_into_grid_cuda(ends, status, origin, resolution, lo, dims)
+        else:
+            threads = numba.get_num_threads()
+            padded = cells + 2 * int(K.grid_padding(dims))
+            copies = max(1, min(threads, MAX_GRID_COPIES_BYTES // padded))
+            grid = K.trace_into_grid(ends, status, origin, resolution, lo, dims, threads, copies)
         K.mark_occupied(grid, occupied, lo, dims)
         free, occ = K.collect_grid(grid, lo, dims)
         return free, occ, status
