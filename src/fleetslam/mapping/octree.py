@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from fleetslam.errors import MapFileError
 from fleetslam.mapping import _kernels as K
 from fleetslam.mapping import _prune_kernels as P
+from fleetslam.mapping import _table_kernels as T
 from fleetslam.mapping.keys import (
     TREE_DEPTH,
     TREE_MAX_VAL,
@@ -130,7 +131,7 @@ class OccupancyOctree:
         while needed * 2 > capacity:
             capacity *= 2
         keys, values = np.full(capacity, K.EMPTY, dtype=np.uint64), np.empty(capacity, dtype=np.float32)
-        K.table_rehash(self._keys, self._values, keys, values)
+        T.table_rehash(self._keys, self._values, keys, values)
         self._keys, self._values = keys, values
 
     def _update_table(
@@ -142,7 +143,7 @@ class OccupancyOctree:
         start = 0
         while True:
             room = self._keys.shape[0] // 2 - self._count
-            added, done = K.table_update(
+            added, done = T.table_update(
                 self._keys, self._values, updates[start:], deltas[start:], base[start:], has_base[start:],
                 self.clamp_min_log, self.clamp_max_log, touched[start:], room,
             )  # fmt: skip
@@ -228,7 +229,7 @@ class OccupancyOctree:
     ) -> NDArray[np.bool_]:  # fmt: skip
         """Updates inside pruned leaves: early abort when clamped, else expand the leaf along the key's path."""
         keep = np.ones(len(updates), np.bool_)
-        fine_known = K.table_find_many(self._keys, updates) >= 0
+        fine_known = T.table_find_many(self._keys, updates) >= 0
         for j in np.flatnonzero(~fine_known):
             packed = int(updates[j])
             found = self._coarse_containing(packed)
@@ -265,7 +266,7 @@ class OccupancyOctree:
         if siblings_fine:
             self._reserve(len(siblings_fine))
             sib = np.array(siblings_fine, dtype=np.uint64)
-            self._count += K.table_set(self._keys, self._values, sib, np.full(len(sib), value, np.float32))
+            self._count += T.table_set(self._keys, self._values, sib, np.full(len(sib), value, np.float32))
 
     # -- canonical structure ------------------------------------------------------------------------------------
     def _canonical(self) -> _Structure:
@@ -309,7 +310,7 @@ class OccupancyOctree:
         self._keys = np.full(1024, K.EMPTY, dtype=np.uint64)
         self._values = np.zeros(1024, dtype=np.float32)
         self._reserve(len(keys))
-        self._count = K.table_set(self._keys, self._values, keys, leaves.log_odds[fine])
+        self._count = T.table_set(self._keys, self._values, keys, leaves.log_odds[fine])
         self._coarse = {}
         coarse_idx = np.flatnonzero(~fine)
         for i in coarse_idx:
@@ -337,7 +338,7 @@ class OccupancyOctree:
     # -- queries -----------------------------------------------------------------------------------------------
     def _values_at(self, packed: NDArray[np.uint64]) -> NDArray[np.float64]:
         """Log-odds of the leaves holding packed finest keys (NaN = unknown)."""
-        idx = K.table_find_many(self._keys, packed)
+        idx = T.table_find_many(self._keys, packed)
         values = np.where(idx >= 0, self._values[np.maximum(idx, 0)], np.nan).astype(np.float64)
         if self._coarse:
             for j in np.flatnonzero(idx < 0):
