@@ -103,6 +103,16 @@ def so3_log(rotation: ArrayLike) -> Vector:
     return np.asarray(Rotation.from_matrix(np.asarray(rotation, dtype=np.float64)).as_rotvec())
 
 
+def interpolate_pose(a: ArrayLike, b: ArrayLike, fraction: float) -> Matrix4:
+    """The pose a fraction of the way from ``a`` to ``b``: linear in translation, geodesic in rotation."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    out = np.eye(4)
+    delta = a[:3, :3].T @ b[:3, :3]
+    out[:3, :3] = a[:3, :3] @ so3_exp(fraction * so3_log(delta))
+    out[:3, 3] = (1.0 - fraction) * a[:3, 3] + fraction * b[:3, 3]
+    return out
+
+
 def rotation_angle(pose_or_rotation: ArrayLike) -> float:
     """Angle (radians, in [0, π]) of the rotation part of a pose or rotation matrix."""
     m = np.asarray(pose_or_rotation, dtype=np.float64)[:3, :3]

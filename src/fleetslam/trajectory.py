@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.errors import DatasetError
-from fleetslam.geometry import pose_from_quat, pose_to_quat
+from fleetslam.geometry import interpolate_pose, pose_from_quat, pose_to_quat
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,37 @@ class NearestPose:
         if abs(self._stamps[nearest] - stamp) > self._max_difference:
             return None
         return np.asarray(self._poses[self._order[nearest]], np.float64)
+
+
+class InterpolatedPose:
+    """The pose of a trajectory at a stamp, interpolated between its neighbours (for a trajectory sampled faster
+    than it is looked up, such as odometry at camera stamps).
+
+    None where the neighbours are more than ``max_gap`` seconds apart (the trajectory has a hole there) and
+    before the first or after the last pose by more than ``tolerance`` seconds (there, the end pose).
+    """
+
+    def __init__(self, trajectory: Trajectory, max_gap: float, tolerance: float) -> None:
+        order = np.argsort(trajectory.stamps, kind="stable")
+        self._stamps = trajectory.stamps[order]
+        self._poses = trajectory.poses[order]
+        self._max_gap = max_gap
+        self._tolerance = tolerance
+
+    def __call__(self, stamp: float) -> NDArray[np.float64] | None:
+        n = len(self._stamps)
+        if n == 0:
+            return None
+        index = int(np.searchsorted(self._stamps, stamp))
+        if index == 0 or index == n:
+            end = 0 if index == 0 else n - 1
+            near = abs(self._stamps[end] - stamp) <= self._tolerance
+            return np.array(self._poses[end], np.float64) if near else None
+        t0, t1 = float(self._stamps[index - 1]), float(self._stamps[index])
+        if t1 - t0 > self._max_gap:
+            return None
+        fraction = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
+        return interpolate_pose(self._poses[index - 1], self._poses[index], fraction)
 
 
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:

@@ -132,6 +132,40 @@ def test_record_and_play_round_trip(
     assert replay_span == pytest.approx(recorded_span / 2, rel=0.25)
 
 
+def test_record_gets_what_latched_publishers_sent_before_it_started(
+    fleet_env: str, make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    """tf_static-like topics are published once, transient local: the recorder subscribes the same way and gets
+    the message from before it started; a volatile topic's old message is not replayed."""
+    node = Node("mounting", context=make_context("c3po"))
+    latched = node.create_publisher(
+        "std_msgs/msg/String", "tf_static_like", QoSProfile(depth=1, durability="transient_local")
+    )
+    plain = node.create_publisher("std_msgs/msg/String", "plain")
+    latched.publish(String(data="mounted"))
+    plain.publish(String(data="gone"))
+    time.sleep(0.3)
+    bag = tmp_path / "bag"
+    assert main(["record", "-o", str(bag), "/c3po/tf_static_like", "/c3po/plain", "--duration", "1.5"]) == 0
+    with AnyReader([bag]) as reader:
+        recorded = {c.topic: [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages([c])]
+                    for c in reader.connections}  # fmt: skip
+    assert recorded["/c3po/tf_static_like"] == ["mounted"]
+    assert recorded.get("/c3po/plain", []) == []
+
+
+def test_recording_qos_follows_the_publishers() -> None:
+    from fleetslam.cli.record import recording_qos
+
+    latched, plain = QoSProfile(durability="transient_local"), QoSProfile()
+    assert recording_qos([latched, latched]).durability == "transient_local"
+    assert (
+        recording_qos([latched, plain]).durability == "volatile"
+    )  # one volatile publisher: its late joiners get nothing
+    assert recording_qos([plain, QoSProfile(reliability="best_effort")]).reliability == "best_effort"
+    assert recording_qos([plain]).reliability == "reliable" and recording_qos([plain]).depth == 1000
+
+
 def test_stats_shows_agents(
     talker: Node,
     make_context: Callable[..., Context],

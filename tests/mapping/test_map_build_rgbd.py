@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from fleetslam.cli.main import main
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
-from fleetslam.geometry import make_pose, so3_exp
+from fleetslam.geometry import make_pose, pose_to_quat, so3_exp
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.mapping.rgbd_scans import RgbdScanCounts, rgbd_scans
 from fleetslam.trajectory import Trajectory, read_tum, write_tum
@@ -225,8 +225,25 @@ def test_frames_own_poses_and_their_absence() -> None:
         next(rgbd_scans(_RenderedWall([0.0], [None]), None, pixel_step=0))
 
 
-def _write_recording(folder: Path, stamps: list[float], k: Intrinsics) -> None:
-    """A rosbag2 folder with MCAP storage, as `fleetslam record` writes it: colour, 32FC1 depth, CameraInfo."""
+#: Where the optical frame sits on the base, through camera_link (x forward, y left, z up).
+BASE_CAMERA_LINK = make_pose(so3_exp([0.0, 0.0, 0.2]), [0.12, 0.0, 0.35])
+CAMERA_LINK_OPTICAL = make_pose(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), [0.0, 0.02, 0.0])
+
+
+def _camera_pose_at(i: float) -> NDArray[np.float64]:
+    """:func:`_camera_pose` between the frames as well (linear translation, rotation about one axis)."""
+    return make_pose(so3_exp([0.0, 0.06 * (i - 2), 0.0]), [0.05 * i, -0.02 * i, 0.1 * i])
+
+
+def _write_recording(
+    folder: Path, stamps: list[float], k: Intrinsics, poses: dict[str, str] | None = None, tf_static: bool = False
+) -> None:
+    """A rosbag2 folder with MCAP storage, as `fleetslam record` writes it: colour, 32FC1 depth, CameraInfo.
+
+    ``poses``: Odometry topics of base_link in the given frame, sampled five times per frame interval, whose
+    camera poses are the frames' :func:`_camera_pose` (``"garbage"`` as the frame: random poses);
+    ``tf_static``: the camera's mounting base_link → camera_link → camera_rgb_optical_frame.
+    """
     from fleetslam.middleware.recording import BagWriter
     from fleetslam.middleware.typesys import get_typestore
 
@@ -262,6 +279,59 @@ def _write_recording(folder: Path, stamps: list[float], k: Intrinsics) -> None:
             put("/c3po/camera/rgb/image_raw", "sensor_msgs/msg/Image", image(stamp, "rgb8", colour), stamp)
             put("/c3po/camera/depth/image_raw", "sensor_msgs/msg/Image", image(stamp, "32FC1", depth), stamp + 0.002)
 
+        def transform(parent: str, child: str, pose: NDArray[np.float64], stamp: float) -> Any:
+            t, q = pose_to_quat(pose)
+            return types["geometry_msgs/msg/TransformStamped"](
+                header=types["std_msgs/msg/Header"](
+                    stamp=types["builtin_interfaces/msg/Time"](sec=int(stamp), nanosec=0), frame_id=parent
+                ),
+                child_frame_id=child,
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](x=t[0], y=t[1], z=t[2]),
+                    rotation=types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+                ),
+            )
+
+        if tf_static:
+            mounts = [transform("base_link", "camera_link", BASE_CAMERA_LINK, stamps[0]),
+                      transform("camera_link", "camera_rgb_optical_frame", CAMERA_LINK_OPTICAL, stamps[0])]  # fmt: skip
+            put("/c3po/tf_static", "tf2_msgs/msg/TFMessage", types["tf2_msgs/msg/TFMessage"](transforms=mounts), 0.0)
+        camera_base = np.linalg.inv(BASE_CAMERA_LINK @ CAMERA_LINK_OPTICAL)
+        rng = np.random.default_rng(3)
+        for topic, frame in (poses or {}).items():
+            for j in range(5 * (len(stamps) - 1) + 1):
+                stamp = stamps[0] + j * (stamps[1] - stamps[0]) / 5
+                pose = (
+                    _camera_pose_at(j / 5) @ camera_base
+                    if frame != "garbage"
+                    else make_pose(translation=rng.normal(size=3))
+                )
+                t, q = pose_to_quat(pose)
+                with_cov = types["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=types["geometry_msgs/msg/Pose"](
+                        position=types["geometry_msgs/msg/Point"](x=t[0], y=t[1], z=t[2]),
+                        orientation=types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+                    ),
+                    covariance=np.zeros(36),
+                )
+                twist = types["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=types["geometry_msgs/msg/Twist"](
+                        linear=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                        angular=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                    ),
+                    covariance=np.zeros(36),
+                )
+                odom = types["nav_msgs/msg/Odometry"](
+                    header=types["std_msgs/msg/Header"](
+                        stamp=types["builtin_interfaces/msg/Time"](
+                            sec=int(stamp), nanosec=round((stamp - int(stamp)) * 1e9)
+                        ),
+                        frame_id="world" if frame == "garbage" else frame,
+                    ),
+                    child_frame_id="base_link", pose=with_cov, twist=twist,
+                )  # fmt: skip
+                put(topic, "nav_msgs/msg/Odometry", odom, stamp)
+
 
 def test_recording_with_a_trajectory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
@@ -280,6 +350,62 @@ def test_recording_with_a_trajectory(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert _build(recording, "--kind", "mcap", "-o", tmp_path / "x.bt") == 2
     err = capsys.readouterr().err
     assert str(recording) in err and "--trajectory" in err
+    assert not (tmp_path / "x.bt").exists()
+
+
+def test_recording_with_its_ground_truth_and_mounting(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """ground_truth/odom (base_link in world) times the tf_static chain gives the camera poses: the wall is one
+    voxel layer. The other robot's ground truth in the same recording is not taken."""
+    from fleetslam.datasets import open_source
+
+    k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
+    stamps = [50.0 + i / 15.0 for i in range(FRAMES)]
+    recording = tmp_path / "run"
+    topics = {"/c3po/ground_truth/odom": "world", "/a_robot/ground_truth/odom": "garbage"}
+    _write_recording(recording, stamps, k, poses=topics, tf_static=True)
+    source = open_source(recording)
+    truth = source.groundtruth()
+    assert truth is not None and len(truth) == 5 * (FRAMES - 1) + 1
+    frames = list(source)
+    for i, frame in enumerate(frames):
+        assert frame.groundtruth is not None and frame.prior is None
+        np.testing.assert_allclose(frame.groundtruth, _camera_pose(i), atol=1e-9)
+    out = tmp_path / "wall.bt"
+    assert _build(recording, "-o", out, "--pixel-step", "1") == 0
+    assert "5 of 5 frames" in capsys.readouterr().out
+    _assert_wall_map(out, _camera_pose(0)[:3, 3])
+
+
+def test_recording_with_wheel_odometry_only(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Without ground truth, the frames' wheel-odometry poses (odom times the mounting) build the map, in the
+    odometry frame, with a warning that it drifts."""
+    k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
+    stamps = [50.0 + i / 15.0 for i in range(FRAMES)]
+    recording = tmp_path / "run"
+    _write_recording(recording, stamps, k, poses={"/c3po/odom": "odom", "/c3po/slam/odom": "garbage"}, tf_static=True)
+    out = tmp_path / "wall.bt"
+    assert _build(recording, "-o", out, "--pixel-step", "1") == 0
+    assert "5 of 5 frames" in capsys.readouterr().out
+    assert "wheel-odometry poses" in caplog.text
+    _assert_wall_map(out, _camera_pose(0)[:3, 3])
+
+
+def test_recording_whose_mounting_is_missing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Base poses without tf_static cannot be camera poses: a warning names the frames, the build asks for
+    --trajectory and writes nothing."""
+    k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
+    stamps = [50.0 + i / 15.0 for i in range(FRAMES)]
+    recording = tmp_path / "run"
+    _write_recording(recording, stamps, k, poses={"/c3po/ground_truth/odom": "world"})
+    assert _build(recording, "-o", tmp_path / "x.bt") == 2
+    assert "--trajectory" in capsys.readouterr().err
+    assert (
+        "'base_link'" in caplog.text and "'camera_rgb_optical_frame'" in caplog.text and "no tf_static" in caplog.text
+    )
     assert not (tmp_path / "x.bt").exists()
 
 

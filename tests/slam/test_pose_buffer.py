@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.geometry import pose_from_planar, rotation_angle, yaw_of
-from fleetslam.slam.pose_buffer import PoseBuffer, interpolate_pose
+from fleetslam.geometry import interpolate_pose, pose_from_planar, rotation_angle, yaw_of
+from fleetslam.slam.pose_buffer import PoseBuffer
 
 
 def test_interpolation_is_linear_in_translation_and_geodesic_in_rotation() -> None:

@@ -29,7 +29,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "of 'fleetslam slam run' trajectory.txt and of TUM and simulator groundtruth.txt; each frame takes the "
         "pose of the nearest stamp within --max-difference, frames without one are skipped. Without "
         "--trajectory: the sequence's ground truth, else the poses its frames carry (wheel odometry of a "
-        "simulator export). Free space is traced from the camera centre.",
+        "simulator export); in a recording these are ground_truth/odom and odom, each times the camera's mounting "
+        "on tf_static. Free space is traced from the camera centre.",
     )
     build.add_argument(
         "input",

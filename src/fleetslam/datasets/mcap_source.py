@@ -3,10 +3,16 @@
 Messages are CDR-encoded ROS 2 types, decoded with the rosbags typestore (no middleware needed). A colour
 image is paired with the depth image whose header stamp is closest within ``max_difference``; frames are
 decoded while iterating. Depth ``16UC1`` is millimetres, ``32FC1`` metres.
+
+Camera poses, when the recording has them (:mod:`fleetslam.datasets.recorded_poses`): the simulator's
+``ground_truth/odom`` is the ground truth and the wheel odometry ``odom`` each frame's prior, both times the
+camera's mounting from ``tf_static``, interpolated at the frames' stamps. Topics in the image topics' namespace
+(``/c3po/...``) win over others.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -15,8 +21,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
+from fleetslam.datasets.recorded_poses import camera_trajectory, mounting, odometry_trajectory, static_transforms
 from fleetslam.errors import DatasetError, MissingExtraError
-from fleetslam.trajectory import Trajectory
+from fleetslam.trajectory import InterpolatedPose, Trajectory
+
+log = logging.getLogger(__name__)
+
+#: Odometry poses further apart than this (s) are a hole in the recording: no pose is interpolated across it.
+MAX_POSE_GAP = 0.25
 
 
 def _typestore() -> Any:
@@ -79,6 +91,8 @@ class McapSource:
         self.max_difference = max_difference
         self._store = _typestore()
         image_topics: list[str] = []
+        odometry_topics: list[str] = []
+        self._tf_static_topics: list[str] = []
         info_topic: str | None = None
         make_reader = _reader(path)
         with path.open("rb") as f:
@@ -92,12 +106,24 @@ class McapSource:
                 image_topics.append(channel.topic)
             elif type_name == "sensor_msgs/msg/CameraInfo" and info_topic is None:
                 info_topic = channel.topic
+            elif type_name == "nav_msgs/msg/Odometry":
+                odometry_topics.append(channel.topic)
+            elif type_name == "tf2_msgs/msg/TFMessage" and channel.topic.endswith("tf_static"):
+                self._tf_static_topics.append(channel.topic)
         self.rgb_topic = rgb_topic or next((t for t in image_topics if "depth" not in t), None)
         self.depth_topic = depth_topic or next((t for t in image_topics if "depth" in t), None)
         if self.rgb_topic is None or self.depth_topic is None:
             raise DatasetError(f"{path}: need colour and depth Image topics, found {image_topics}")
+        self.camera_frame = ""
         self._index = self._pair_index()
         self.intrinsics = intrinsics or self._read_intrinsics(info_topic)
+        namespace = self.depth_topic.split("/camera/")[0] if "/camera/" in self.depth_topic else ""
+        self.groundtruth_topic = _pick(namespace, [t for t in odometry_topics if t.endswith("ground_truth/odom")])
+        self.odometry_topic = _pick(
+            namespace,
+            [t for t in odometry_topics if t.endswith("/odom") and not t.endswith(("ground_truth/odom", "slam/odom"))],
+        )
+        self._poses: dict[str, Trajectory | None] = {}
 
     def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
         make_reader = _reader(self.path)
@@ -110,6 +136,8 @@ class McapSource:
         stamps: dict[str, list[float]] = {self.rgb_topic or "": [], self.depth_topic or "": []}
         for topic, msg in self._messages([self.rgb_topic or "", self.depth_topic or ""]):
             stamps[topic].append(_stamp(msg))
+            if topic == self.depth_topic and not self.camera_frame:
+                self.camera_frame = str(msg.header.frame_id)
         from fleetslam.datasets.tum import associate
 
         pairs = associate(stamps[self.rgb_topic or ""], stamps[self.depth_topic or ""], self.max_difference)
@@ -131,6 +159,9 @@ class McapSource:
     def __iter__(self) -> Iterator[RGBDFrame]:
         wanted_rgb = {i: n for n, (i, _) in enumerate(self._index)}
         wanted_depth = {j: n for n, (_, j) in enumerate(self._index)}
+        truth, prior = self.groundtruth(), self.odometry()
+        truth_at = None if truth is None else InterpolatedPose(truth, MAX_POSE_GAP, self.max_difference)
+        prior_at = None if prior is None else InterpolatedPose(prior, MAX_POSE_GAP, self.max_difference)
         pending: dict[int, dict[str, Any]] = {}
         counts = {self.rgb_topic: 0, self.depth_topic: 0}
         next_out = 0
@@ -147,16 +178,54 @@ class McapSource:
             while next_out in pending and len(pending[next_out]) == 2:
                 pair = pending.pop(next_out)
                 where = f"{self.path} frame {next_out}"
+                stamp = _stamp(pair["rgb"])
                 yield RGBDFrame(
                     next_out,
-                    _stamp(pair["rgb"]),
+                    stamp,
                     image_to_array(pair["rgb"], where),
                     image_to_array(pair["depth"], where),
+                    prior=None if prior_at is None else prior_at(stamp),
+                    groundtruth=None if truth_at is None else truth_at(stamp),
                 )
                 next_out += 1
 
     def groundtruth(self) -> Trajectory | None:
-        return None
+        """The camera's ground-truth trajectory (``T_world_camera``): ``ground_truth/odom`` times the mounting."""
+        return self._camera_poses(self.groundtruth_topic)
+
+    def odometry(self) -> Trajectory | None:
+        """The camera's wheel-odometry trajectory (``T_odom_camera``): ``odom`` times the mounting."""
+        return self._camera_poses(self.odometry_topic)
+
+    def _camera_poses(self, topic: str | None) -> Trajectory | None:
+        if topic is None:
+            return None
+        if topic not in self._poses:
+            self._poses[topic] = self._read_camera_poses(topic)
+        return self._poses[topic]
+
+    def _read_camera_poses(self, topic: str) -> Trajectory | None:
+        _, base_frame, base = odometry_trajectory(msg for _, msg in self._messages([topic]))
+        if len(base) == 0:
+            return None
+        transforms = static_transforms(msg for _, msg in self._messages(self._tf_static_topics))
+        base_camera = mounting(transforms, base_frame, self.camera_frame)
+        if base_camera is None:
+            log.warning(
+                "%s: %s has poses of %r, but %s has no chain of transforms from it to the images' frame %r; "
+                "those poses are not used",
+                self.path, topic, base_frame, " or ".join(self._tf_static_topics) or "the recording (no tf_static)",
+                self.camera_frame,
+            )  # fmt: skip
+            return None
+        return camera_trajectory(base, base_camera)
+
+
+def _pick(namespace: str, topics: list[str]) -> str | None:
+    """The topic in ``namespace`` (the images'), else the first one, else None."""
+    own = sorted(t for t in topics if namespace and t.startswith(namespace + "/"))
+    candidates = own or sorted(topics)
+    return candidates[0] if candidates else None
 
 
 def open_mcap(

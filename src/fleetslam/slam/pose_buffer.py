@@ -7,16 +7,7 @@ import bisect
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import so3_exp, so3_log
-
-
-def interpolate_pose(a: NDArray[np.float64], b: NDArray[np.float64], fraction: float) -> NDArray[np.float64]:
-    """The pose a fraction of the way from ``a`` to ``b``: linear in translation, geodesic in rotation."""
-    out = np.eye(4)
-    delta = a[:3, :3].T @ b[:3, :3]
-    out[:3, :3] = a[:3, :3] @ so3_exp(fraction * so3_log(delta))
-    out[:3, 3] = (1.0 - fraction) * a[:3, 3] + fraction * b[:3, 3]
-    return out
+from fleetslam.geometry import interpolate_pose
 
 
 class PoseBuffer:
