@@ -159,5 +159,44 @@ def test_launch_cli_stops_children_on_ctrl_c(tmp_path: Path) -> None:
         os.kill(child_pid, 0)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal is Linux's prctl")
+def test_children_end_when_the_launcher_is_killed(tmp_path: Path) -> None:
+    """SIGKILL leaves the launcher no chance to stop its children; they are in their own process groups, so
+    only the parent-death signal ends them."""
+    marker = tmp_path / "child.pid"
+    child = f"import os, time; open({str(marker)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+    launcher = textwrap.dedent(f"""
+        import sys
+        from fleetslam.launch.description import ProcessSpec, RestartPolicy
+        from fleetslam.launch.supervisor import Supervisor
+        spec = ProcessSpec(label="c3po/sleeper", host="localhost", argv=[sys.executable, "-c", {child!r}],
+                           environment={{}}, restart=RestartPolicy())
+        Supervisor([spec], output=sys.stdout).run()
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", launcher], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 20
+    while not marker.exists() or not marker.read_text():
+        assert time.monotonic() < deadline, "child never started"
+        time.sleep(0.05)
+    child_pid = int(marker.read_text())
+    proc.kill()
+    proc.wait(timeout=10)
+    deadline = time.monotonic() + 10
+    while not _gone(child_pid):
+        if time.monotonic() > deadline:
+            os.kill(child_pid, signal.SIGKILL)
+            pytest.fail("the child outlived its killed launcher")
+        time.sleep(0.05)
+
+
+def _gone(pid: int) -> bool:
+    """The process has ended: no such process, or a zombie that init has not reaped yet."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return True
+    return stat.rsplit(")", 1)[-1].split()[0] in ("Z", "X")
+
+
 def test_empty_fleet_is_valid() -> None:
     assert FleetDescription().agents == []

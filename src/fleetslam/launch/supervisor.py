@@ -2,16 +2,21 @@
 
 Each process runs in its own process group; its stdout and stderr are read line by line and written with a
 `[label]` prefix. A process that exits is restarted according to its policy with exponential back-off. On
-``stop()`` (Ctrl-C) every process gets SIGINT, then SIGTERM after the grace period, then SIGKILL.
+``stop()`` (Ctrl-C) every process gets SIGINT, then SIGTERM after the grace period, then SIGKILL. On Linux a
+process also gets SIGTERM when the supervising thread dies without stopping it (the launcher killed with
+SIGKILL, a test runner that aborts): its own process group keeps Ctrl-C of the terminal from reaching it, so
+nothing else would end it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import os
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -21,6 +26,27 @@ from typing import TextIO
 from fleetslam.launch.description import ProcessSpec
 
 log = logging.getLogger(__name__)
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _parent_death_signal() -> Callable[[], None] | None:
+    """A ``preexec_fn`` asking the kernel to send the child SIGTERM when the thread that started it ends
+    (Linux ``prctl(PR_SET_PDEATHSIG)``); None elsewhere. libc is looked up here, in the parent: after fork,
+    the child only makes the call."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
+    arguments = (_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+
+    def set_parent_death_signal() -> None:
+        prctl(*arguments)
+
+    return set_parent_death_signal
 
 
 @dataclass
@@ -58,6 +84,7 @@ class Supervisor:
         self._output_lock = threading.Lock()
         self._grace_s = grace_s
         self._clock = clock
+        self._preexec = _parent_death_signal()
         self._stopping = False
 
     # -- state -----------------------------------------------------------------------------------------
@@ -147,6 +174,7 @@ class Supervisor:
                 stderr=subprocess.PIPE,
                 stdin=subprocess.DEVNULL,
                 start_new_session=True,
+                preexec_fn=self._preexec,
             )
         except OSError as err:
             self._emit(spec.label, f"cannot start {spec.argv[0]!r}: {err.strerror}")
