@@ -7,7 +7,7 @@ Numba compile (or cache load) time is excluded from the timings and reported as 
 finds a CUDA GPU, the same inserts run with the rays walked on it too (``gpu_*`` fields, including whether the map
 is the CPU's leaf for leaf); otherwise ``"gpu": null``.
 
-    python benchmarks/mapping_throughput.py [--resolution 0.05] [--kinect-poses 3] [--graph-repeats 5]
+    python benchmarks/mapping_throughput.py [--resolution 0.05] [--kinect-poses 3] [--graph-repeats 5] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -246,7 +246,7 @@ def main() -> None:
     parser.add_argument("--resolution", type=float, default=0.05)
     parser.add_argument("--kinect-poses", type=int, default=3)
     parser.add_argument("--graph-repeats", type=int, default=5, help="insert the real scan graph this many times")
-    parser.add_argument("--repeats", type=int, default=3, help="best of this many runs (fresh trees)")
+    parser.add_argument("--repeats", type=int, default=5, help="best of this many runs (fresh trees)")
     args = parser.parse_args()
 
     t0 = time.perf_counter()

@@ -41,6 +41,10 @@ from fleetslam.mapping.raycast import cast_ray, scan_keys
 
 log = logging.getLogger(__name__)
 
+#: Largest fill of the voxel table, LOAD_NUM / LOAD_DEN, before it doubles. 5/8 rather than 1/2: the table takes
+#: about 0.8× the memory (half of it in the Kinect benchmark) for linear probes about 20 % slower.
+LOAD_NUM, LOAD_DEN = 5, 8
+
 
 def logodds(probability: float) -> np.float32:
     """OctoMap's logodds(): float(log(p / (1 - p)))."""
@@ -125,10 +129,10 @@ class OccupancyOctree:
     # -- storage ---------------------------------------------------------------------------------------------
     def _reserve(self, extra: int) -> None:
         needed = self._count + extra
-        if needed * 2 <= self._keys.shape[0]:
+        if needed * LOAD_DEN <= self._keys.shape[0] * LOAD_NUM:
             return
         capacity = self._keys.shape[0]
-        while needed * 2 > capacity:
+        while needed * LOAD_DEN > capacity * LOAD_NUM:
             capacity *= 2
         keys, values = np.full(capacity, K.EMPTY, dtype=np.uint64), np.empty(capacity, dtype=np.float32)
         T.table_rehash(self._keys, self._values, keys, values)
@@ -138,11 +142,11 @@ class OccupancyOctree:
         self, updates: NDArray[np.uint64], deltas: NDArray[np.float32], base: NDArray[np.float32],
         has_base: NDArray[np.bool_],
     ) -> NDArray[np.bool_]:  # fmt: skip
-        """One clamped log-odds update per key; grows the table (load ≤ 1/2) only when new keys need it."""
+        """One clamped log-odds update per key; grows the table (load ≤ 5/8) only when new keys need it."""
         touched = np.zeros(len(updates), np.bool_)
         start = 0
         while True:
-            room = self._keys.shape[0] // 2 - self._count
+            room = self._keys.shape[0] * LOAD_NUM // LOAD_DEN - self._count
             added, done = T.table_update(
                 self._keys, self._values, updates[start:], deltas[start:], base[start:], has_base[start:],
                 self.clamp_min_log, self.clamp_max_log, touched[start:], room,
