@@ -1,5 +1,5 @@
-"""Numba kernels of the canonical (maximally pruned) tree: table compaction, Morton radix sort, and the bottom-up
-collapse of equal siblings, level by level over Morton-sorted arrays.
+"""Numba kernels of the canonical (maximally pruned) tree: table compaction and Morton radix sort (both in
+parallel), and the bottom-up collapse of equal siblings, level by level over Morton-sorted arrays.
 
 A node's children are a contiguous run of the Morton-sorted codes one level down (the code without its last
 three bits is the parent's), so every level is one linear pass; no tree of pointers is built.
@@ -14,7 +14,7 @@ from fleetslam.mapping._kernels import EMPTY
 from fleetslam.mapping.keys import TREE_DEPTH
 
 try:
-    from numba import njit
+    from numba import njit, prange
 except ImportError as err:  # pragma: no cover - exercised only without the extra
     raise MissingExtraError("numba", "mapping") from err
 
@@ -30,28 +30,102 @@ def _spread3(v):  # type: ignore[no-untyped-def]
     return v
 
 
-@njit(cache=True)
-def table_morton(keys, values):  # type: ignore[no-untyped-def]
-    """Morton codes (x → bit 0, y → bit 1, z → bit 2 of each triple) and values of the table's filled slots."""
-    n = 0
-    for i in range(keys.shape[0]):
-        if keys[i] != EMPTY:
-            n += 1
-    codes = np.empty(n, dtype=np.uint64)
-    out_values = np.empty(n, dtype=np.float32)
-    j = 0
+@njit(cache=True, parallel=True)
+def table_morton(keys, values, chunks):  # type: ignore[no-untyped-def]
+    """Morton codes (x → bit 0, y → bit 1, z → bit 2 of each triple) and values of the table's filled slots, in
+    slot order; ``chunks`` parts of the table in parallel."""
+    n_slots = keys.shape[0]
+    size = (n_slots + chunks - 1) // chunks
+    starts = np.zeros(chunks + 1, dtype=np.int64)
+    for c in prange(chunks):
+        filled = 0
+        for i in range(c * size, min(n_slots, (c + 1) * size)):
+            if keys[i] != EMPTY:
+                filled += 1
+        starts[c + 1] = filled
+    for c in range(chunks):
+        starts[c + 1] += starts[c]
+    codes = np.empty(starts[chunks], dtype=np.uint64)
+    out_values = np.empty(starts[chunks], dtype=np.float32)
     mask = np.uint64(0xFFFF)
-    for i in range(keys.shape[0]):
-        k = keys[i]
-        if k == EMPTY:
-            continue
-        x = (k >> np.uint64(32)) & mask
-        y = (k >> np.uint64(16)) & mask
-        z = k & mask
-        codes[j] = _spread3(x) | (_spread3(y) << np.uint64(1)) | (_spread3(z) << np.uint64(2))
-        out_values[j] = values[i]
-        j += 1
+    for c in prange(chunks):
+        j = starts[c]
+        for i in range(c * size, min(n_slots, (c + 1) * size)):
+            k = keys[i]
+            if k == EMPTY:
+                continue
+            x = (k >> np.uint64(32)) & mask
+            y = (k >> np.uint64(16)) & mask
+            z = k & mask
+            codes[j] = _spread3(x) | (_spread3(y) << np.uint64(1)) | (_spread3(z) << np.uint64(2))
+            out_values[j] = values[i]
+            j += 1
     return codes, out_values
+
+
+@njit(cache=True, parallel=True)
+def radix_sort_pairs48(codes, values, chunks):  # type: ignore[no-untyped-def]
+    """48-bit codes sorted ascending with their float32 values (stable LSD radix sort, three 16-bit digits).
+
+    Each pass counts the digits of ``chunks`` parts of the input in parallel, then scatters the parts in parallel
+    to disjoint places. Moving the values along costs less than sorting indices and gathering afterwards.
+    """
+    n = codes.shape[0]
+    keys = codes.copy()
+    vals = values.copy()
+    next_keys = np.empty(n, dtype=np.uint64)
+    next_vals = np.empty(n, dtype=np.float32)
+    size = (n + chunks - 1) // chunks
+    places = np.empty((chunks, 65536), dtype=np.int64)
+    digit_mask = np.uint64(0xFFFF)
+    for shift in (0, 16, 32):
+        s = np.uint64(shift)
+        for c in prange(chunks):
+            for d in range(65536):
+                places[c, d] = 0
+            for i in range(c * size, min(n, (c + 1) * size)):
+                places[c, np.int64((keys[i] >> s) & digit_mask)] += 1
+        # Exclusive prefix by (digit, part): part c's codes of a digit follow those of parts < c (stable).
+        total = 0
+        for d in range(65536):
+            for c in range(chunks):
+                count = places[c, d]
+                places[c, d] = total
+                total += count
+        for c in prange(chunks):
+            for i in range(c * size, min(n, (c + 1) * size)):
+                digit = np.int64((keys[i] >> s) & digit_mask)
+                j = places[c, digit]
+                places[c, digit] = j + 1
+                next_keys[j] = keys[i]
+                next_vals[j] = vals[i]
+        keys, next_keys = next_keys, keys
+        vals, next_vals = next_vals, vals
+    return keys, vals
+
+
+@njit(cache=True, inline="always")
+def _compact3(v):  # type: ignore[no-untyped-def]
+    # keys._compact3 on one code (the inverse of _spread3).
+    v = v & np.uint64(0x1249249249249249)
+    v = (v ^ (v >> np.uint64(2))) & np.uint64(0x10C30C30C30C30C3)
+    v = (v ^ (v >> np.uint64(4))) & np.uint64(0x100F00F00F00F00F)
+    v = (v ^ (v >> np.uint64(8))) & np.uint64(0x1F0000FF0000FF)
+    v = (v ^ (v >> np.uint64(16))) & np.uint64(0x1F00000000FFFF)
+    return v
+
+
+@njit(cache=True)
+def unmorton_keys(codes):  # type: ignore[no-untyped-def]
+    """``(N, 3)`` uint16 keys of Morton codes: :func:`fleetslam.mapping.keys.unmorton` in one pass (the NumPy
+    version makes a dozen passes over the arrays, 25× slower)."""
+    out = np.empty((codes.shape[0], 3), dtype=np.uint16)
+    for i in range(codes.shape[0]):
+        c = codes[i]
+        out[i, 0] = _compact3(c)
+        out[i, 1] = _compact3(c >> np.uint64(1))
+        out[i, 2] = _compact3(c >> np.uint64(2))
+    return out
 
 
 @njit(cache=True)

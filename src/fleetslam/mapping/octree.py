@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -33,7 +34,6 @@ from fleetslam.mapping.keys import (
     morton,
     node_centers,
     pack,
-    unmorton,
     unpack,
 )
 from fleetslam.mapping.leaves import LeafArrays
@@ -275,7 +275,7 @@ class OccupancyOctree:
     # -- canonical structure ------------------------------------------------------------------------------------
     def _canonical(self) -> _Structure:
         if self._structure is None:
-            fine_morton, fine_values = P.table_morton(self._keys, self._values)
+            fine_morton, fine_values = P.table_morton(self._keys, self._values, numba.get_num_threads())
             items = list(self._coarse.items())
             self._structure = _collapse(
                 fine_morton,
@@ -550,11 +550,11 @@ def _collapse(
 ) -> _Structure:
     """Canonical maximal pruning of a leaf field and its inner-node count: finest leaves by Morton code, coarse
     leaves by depth, packed key at that depth, and value."""
-    order = P.radix_argsort48(fine_morton)
+    sorted_morton, sorted_values = P.radix_sort_pairs48(fine_morton, fine_values, numba.get_num_threads())
     coarse_morton = morton(unpack(coarse_codes)) if len(coarse_codes) else np.zeros(0, np.uint64)
     coarse_order = np.lexsort((coarse_morton, coarse_depths))
     codes, depths, values, inner = P.collapse_levels(
-        fine_morton[order], fine_values[order], coarse_morton[coarse_order],
+        sorted_morton, sorted_values, coarse_morton[coarse_order],
         np.asarray(coarse_depths, np.int64)[coarse_order], np.asarray(coarse_values, np.float32)[coarse_order],
     )  # fmt: skip
-    return _Structure(LeafArrays(unmorton(codes), depths, values), int(inner))
+    return _Structure(LeafArrays(P.unmorton_keys(codes), depths, values), int(inner))
