@@ -20,7 +20,8 @@ from numpy.typing import NDArray
 
 from fleetslam.errors import MapFileError
 from fleetslam.mapping import _io_kernels as kernels
-from fleetslam.mapping.keys import morton, unmorton
+from fleetslam.mapping._prune_kernels import unmorton_keys
+from fleetslam.mapping.keys import morton
 from fleetslam.mapping.leaves import LeafArrays
 
 BT_HEADER = b"# Octomap OcTree binary file"
@@ -91,7 +92,7 @@ def encode_full_payload(leaves: LeafArrays) -> bytes:
 
 
 def _leaves_from(codes: NDArray[np.uint64], depths: NDArray[np.uint8], values: NDArray[np.float32]) -> LeafArrays:
-    return LeafArrays(np.ascontiguousarray(unmorton(codes)), depths.copy(), values.copy())
+    return LeafArrays(unmorton_keys(np.ascontiguousarray(codes, dtype=np.uint64)), depths.copy(), values.copy())
 
 
 def _decode(
