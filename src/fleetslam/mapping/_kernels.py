@@ -241,9 +241,9 @@ def prepare_scan(points, origin, resolution, maxrange):  # type: ignore[no-untyp
                 sx, sy, sz = factor * np.float64(px), factor * np.float64(py), factor * np.float64(pz)
                 inside = (sx >= -TREE_MAX_VAL) & (sx < TREE_MAX_VAL) & (sy >= -TREE_MAX_VAL) & (sy < TREE_MAX_VAL)
                 inside = inside & (sz >= -TREE_MAX_VAL) & (sz < TREE_MAX_VAL)
-                kx = int(math.floor(sx if inside else 0.0)) + TREE_MAX_VAL
-                ky = int(math.floor(sy if inside else 0.0)) + TREE_MAX_VAL
-                kz = int(math.floor(sz if inside else 0.0)) + TREE_MAX_VAL
+                kx = math.floor(sx if inside else 0.0) + TREE_MAX_VAL
+                ky = math.floor(sy if inside else 0.0) + TREE_MAX_VAL
+                kz = math.floor(sz if inside else 0.0) + TREE_MAX_VAL
                 status[i] = 0 if inside else (2 if finite else 1)
                 occupied[i] = _pack(kx, ky, kz) if inside else EMPTY
                 lx = min(lx, kx if inside else far)
