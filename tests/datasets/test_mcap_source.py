@@ -87,3 +87,16 @@ def test_mcap_pairs_colour_and_depth(tmp_path: Path) -> None:
     assert frames[2].rgb[0, 0, 0] == 20  # BGR converted to RGB
     assert frames[3].depth[0, 0] == pytest.approx(1.003)
     assert frames[1].stamp == pytest.approx(10.0 + 1 / 30.0)
+
+
+def test_mcap_every_other_frame_decodes_only_those(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    _write(path, 5)
+    source = open_source(path)
+    everything = list(source)
+    every_other = list(source.frames(every=2))
+    assert [f.index for f in every_other] == [0, 2, 4]
+    for frame in every_other:
+        assert frame.stamp == everything[frame.index].stamp
+        np.testing.assert_array_equal(frame.rgb, everything[frame.index].rgb)
+        np.testing.assert_array_equal(frame.depth, everything[frame.index].depth)

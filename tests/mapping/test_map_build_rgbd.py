@@ -186,7 +186,11 @@ class _RenderedWall:
         return len(self.stamps)
 
     def __iter__(self) -> Iterator[RGBDFrame]:
-        for i, stamp in enumerate(self.stamps):
+        return self.frames()
+
+    def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
+        for i in range(0, len(self.stamps), every):
+            stamp = self.stamps[i]
             self.produced += 1
             depth = _wall_depth(_camera_pose(i), self.intrinsics)
             rgb = np.zeros((*depth.shape, 3), np.uint8)
@@ -210,6 +214,17 @@ def test_scans_are_lazy_and_matched_by_nearest_stamp() -> None:
     assert [s.id for s in rest] == [2, 3]  # frame 1's nearest pose is 0.03 s away
     np.testing.assert_allclose(rest[1].pose, _camera_pose(3))  # 3.0 is nearer than 3.015
     assert (counts.frames, counts.used, counts.unmatched) == (4, 3, 1)
+
+
+@pytest.mark.parametrize(("frames", "skipped"), [(7, 4), (8, 5)])
+def test_every_nth_frame_reads_only_those(frames: int, skipped: int) -> None:
+    """Frames between the used ones are never read; the counts still cover the whole sequence (with 8 frames, the
+    last one is skipped after the last used one)."""
+    source = _RenderedWall([float(i) for i in range(frames)], [_camera_pose(i) for i in range(frames)])
+    counts = RgbdScanCounts()
+    used = [s.id for s in rgbd_scans(source, None, every=3, counts=counts)]
+    assert used == [0, 3, 6] and source.produced == 3
+    assert (counts.frames, counts.used, counts.skipped_every) == (frames, 3, skipped)
 
 
 def test_frames_own_poses_and_their_absence() -> None:

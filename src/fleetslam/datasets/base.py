@@ -62,6 +62,11 @@ class RGBDSource(Protocol):
 
     def __iter__(self) -> Iterator[RGBDFrame]: ...
 
+    def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
+        """Every ``every``-th frame (the first one included), with its index in the whole sequence; the frames in
+        between are not read."""
+        ...
+
     def groundtruth(self) -> Trajectory | None:
         """Ground-truth camera trajectory when the dataset has one."""
         ...

@@ -13,7 +13,8 @@ camera's mounting from ``tf_static``, interpolated at the frames' stamps. Topics
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -126,10 +127,15 @@ class McapSource:
         self._poses: dict[str, Trajectory | None] = {}
 
     def _messages(self, topics: list[str]) -> Iterator[tuple[str, Any]]:
+        for topic, decode in self._raw_messages(topics):
+            yield topic, decode()
+
+    def _raw_messages(self, topics: list[str]) -> Iterator[tuple[str, Callable[[], Any]]]:
+        """Messages in log order, each with a function that decodes it (skipped messages cost no decoding)."""
         make_reader = _reader(self.path)
         with self.path.open("rb") as f:
             for schema, channel, message in make_reader(f).iter_messages(topics=topics):
-                yield channel.topic, self._store.deserialize_cdr(bytes(message.data), schema.name)
+                yield channel.topic, partial(self._store.deserialize_cdr, bytes(message.data), schema.name)
 
     def _pair_index(self) -> list[tuple[int, int]]:
         # Stamps only on this pass; images are decoded again while iterating to keep memory flat.
@@ -157,15 +163,18 @@ class McapSource:
         return len(self._index)
 
     def __iter__(self) -> Iterator[RGBDFrame]:
-        wanted_rgb = {i: n for n, (i, _) in enumerate(self._index)}
-        wanted_depth = {j: n for n, (_, j) in enumerate(self._index)}
+        return self.frames()
+
+    def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
+        wanted_rgb = {i: n for n, (i, _) in enumerate(self._index) if n % every == 0}
+        wanted_depth = {j: n for n, (_, j) in enumerate(self._index) if n % every == 0}
         truth, prior = self.groundtruth(), self.odometry()
         truth_at = None if truth is None else InterpolatedPose(truth, MAX_POSE_GAP, self.max_difference)
         prior_at = None if prior is None else InterpolatedPose(prior, MAX_POSE_GAP, self.max_difference)
         pending: dict[int, dict[str, Any]] = {}
         counts = {self.rgb_topic: 0, self.depth_topic: 0}
         next_out = 0
-        for topic, msg in self._messages([self.rgb_topic or "", self.depth_topic or ""]):
+        for topic, decode in self._raw_messages([self.rgb_topic or "", self.depth_topic or ""]):
             k = counts[topic]
             counts[topic] = k + 1
             table = wanted_rgb if topic == self.rgb_topic else wanted_depth
@@ -174,7 +183,7 @@ class McapSource:
                 continue
             slot = pending.setdefault(n, {})
             key = "rgb" if topic == self.rgb_topic else "depth"
-            slot[key] = msg
+            slot[key] = decode()
             while next_out in pending and len(pending[next_out]) == 2:
                 pair = pending.pop(next_out)
                 where = f"{self.path} frame {next_out}"
@@ -187,7 +196,7 @@ class McapSource:
                     prior=None if prior_at is None else prior_at(stamp),
                     groundtruth=None if truth_at is None else truth_at(stamp),
                 )
-                next_out += 1
+                next_out += every
 
     def groundtruth(self) -> Trajectory | None:
         """The camera's ground-truth trajectory (``T_world_camera``): ``ground_truth/odom`` times the mounting."""

@@ -66,11 +66,11 @@ class SimExportSource(TumSource):
             return read_intrinsics_file(camera_path), depth_scale
         raise DatasetError(f"{root}: simulator export has neither intrinsics.yaml nor camera.txt")
 
-    def __iter__(self) -> Iterator[RGBDFrame]:
+    def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
         gt = self.groundtruth()
         prior_at = None if self.odometry is None else NearestPose(self.odometry, self.max_difference)
         truth_at = None if gt is None else NearestPose(gt, self.max_difference)
-        for frame in super().__iter__():
+        for frame in super().frames(every):
             if prior_at is not None:
                 frame.prior = prior_at(frame.stamp)
             if truth_at is not None:

@@ -207,7 +207,11 @@ class TumSource:
         return len(self._pairs)
 
     def __iter__(self) -> Iterator[RGBDFrame]:
-        for index, (stamp, rgb_path, depth_path) in enumerate(self._pairs):
+        return self.frames()
+
+    def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
+        for index in range(0, len(self._pairs), every):
+            stamp, rgb_path, depth_path = self._pairs[index]
             yield RGBDFrame(index, stamp, load_rgb(rgb_path), load_depth(depth_path, self.depth_scale))
 
     def groundtruth(self) -> Trajectory | None:

@@ -116,11 +116,9 @@ def rgbd_scans(
             raise DatasetError(f"{name}: the trajectory has no poses")
         lookup = NearestPose(trajectory, max_difference)
     k = source.intrinsics
-    for frame in source:
-        stats.frames += 1
-        if (stats.frames - 1) % every:
-            stats.skipped_every += 1
-            continue
+    for frame in source.frames(every):  # the frames in between are not even read
+        stats.skipped_every += frame.index - stats.frames
+        stats.frames = frame.index + 1
         pose = lookup(frame.stamp) if lookup is not None else _frame_pose(frame, stats, name)
         if pose is None:
             stats.unmatched += 1
@@ -131,6 +129,8 @@ def rgbd_scans(
         stats.used += 1
         stats.points += len(points)
         yield ScanNode(frame.index, pose, points)
+    stats.skipped_every += max(0, len(source) - stats.frames)
+    stats.frames = max(stats.frames, len(source))
 
 
 @dataclass
