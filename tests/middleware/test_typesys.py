@@ -100,6 +100,20 @@ def test_message_from_dict_errors_name_the_field() -> None:
         ts.message_from_dict("geometry_msgs/msg/Twist", {"linear": {"x": "fast"}})
 
 
+def test_message_from_dict_takes_numeric_arrays_whole() -> None:
+    """A grid's or a map's payload as one NumPy array, with the same checks as element by element."""
+    grid = ts.message_from_dict("nav_msgs/msg/OccupancyGrid", {"data": np.array([0, 100, -1], np.int64)})
+    assert grid.data.dtype == np.int8 and grid.data.tolist() == [0, 100, -1]
+    with pytest.raises(MessageError, match=r"field 'data': values outside the range of int8"):
+        ts.message_from_dict("nav_msgs/msg/OccupancyGrid", {"data": np.array([0, 200])})
+    with pytest.raises(MessageError, match=r"field 'covariance': expected 36 values, got 2"):
+        ts.message_from_dict("geometry_msgs/msg/PoseWithCovariance", {"covariance": np.zeros(2)})
+    # Floats for an integer field go element by element and are truncated as int() does.
+    assert ts.message_from_dict("nav_msgs/msg/OccupancyGrid", {"data": np.array([1.7, -1.0])}).data.tolist() == [1, -1]
+    cloud = ts.message_from_dict("sensor_msgs/msg/PointCloud2", {"data": np.arange(4, dtype=np.uint8)})
+    assert cloud.data.dtype == np.uint8 and cloud.data.tolist() == [0, 1, 2, 3]
+
+
 def test_stamps() -> None:
     stamp = ts.stamp_from_ns(1_700_000_000_123_456_789)
     assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789)

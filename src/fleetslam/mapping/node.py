@@ -130,27 +130,26 @@ class MappingNode:
         self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
         z_range = (float(centres[:, 2].min()), float(centres[:, 2].max())) if len(centres) else (0.0, 1.0)
         markers = []
+        point, colour = get_type("geometry_msgs/msg/Point"), get_type("std_msgs/msg/ColorRGBA")
         for cubes in cube_list_markers(centres, sizes, tree.resolution, height_range=z_range):
-            markers.append(
-                message_from_dict(
-                    "visualization_msgs/msg/Marker",
-                    {
-                        "ns": "occupied_cells",
-                        "id": cubes.depth,
-                        "type": 6,
-                        "action": 0,
-                        "pose": {"orientation": {"w": 1.0}},
-                        "scale": {"x": cubes.size, "y": cubes.size, "z": cubes.size},
-                        "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0},
-                        "points": [{"x": x, "y": y, "z": z} for x, y, z in cubes.centres.tolist()],
-                        "colors": [
-                            {"r": r, "g": g, "b": b, "a": a}
-                            for r, g, b, a in (cubes.colors.tolist() if cubes.colors is not None else [])
-                        ],
-                    },
-                )
+            marker = message_from_dict(
+                "visualization_msgs/msg/Marker",
+                {
+                    "ns": "occupied_cells",
+                    "id": cubes.depth,
+                    "type": 6,
+                    "action": 0,
+                    "pose": {"orientation": {"w": 1.0}},
+                    "scale": {"x": cubes.size, "y": cubes.size, "z": cubes.size},
+                    "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0},
+                },
             )
-            markers[-1].header = stamp
+            # Tens of thousands of points: built directly, not through message_from_dict's per-field checks.
+            marker.points = [point(x=x, y=y, z=z) for x, y, z in cubes.centres.tolist()]
+            if cubes.colors is not None:
+                marker.colors = [colour(r=r, g=g, b=b, a=a) for r, g, b, a in cubes.colors.tolist()]
+            marker.header = stamp
+            markers.append(marker)
         self.marker_pub.publish(get_type("visualization_msgs/msg/MarkerArray")(markers=markers))
         free_centres, free_sizes = tree.free_centers()
         grid, origin = project_occupancy_grid(
@@ -162,7 +161,7 @@ class MappingNode:
                       "height": int(grid.shape[0]) if grid.size else 0,
                       "origin": {"position": {"x": float(origin[0]), "y": float(origin[1])},
                                  "orientation": {"w": 1.0}}},
-             "data": grid.reshape(-1).astype(int).tolist()},
+             "data": grid.reshape(-1).astype(np.int8)},
         )  # fmt: skip
         occupancy.header = stamp
         self.grid_pub.publish(occupancy)
