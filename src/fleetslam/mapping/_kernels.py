@@ -25,7 +25,6 @@ except ImportError as err:  # pragma: no cover - exercised only without the extr
     raise MissingExtraError("numba", "mapping") from err
 
 TREE_MAX_VAL = 32768
-KEY_LIMIT = 65536
 EMPTY = np.uint64(0xFFFFFFFFFFFFFFFF)
 DBL_MAX = 1.7976931348623157e308
 #: Rays a thread of :func:`trace_into_grid` takes at a time.
@@ -63,17 +62,18 @@ def _ray_end(points, origin, maxrange, i):  # type: ignore[no-untyped-def]
     return ex, ey, ez, False
 
 
-COUNT, BUFFER, GRID = 0, 1, 2
+COUNT, BUFFER = 0, 1
 
 
 @njit(cache=True, inline="always")
-def _emit(mode, out, out_index, grid, lo, dims, kx, ky, kz):  # type: ignore[no-untyped-def]
+def _pack(kx, ky, kz):  # type: ignore[no-untyped-def]
+    return (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+
+
+@njit(cache=True, inline="always")
+def _emit(mode, out, out_index, kx, ky, kz):  # type: ignore[no-untyped-def]
     if mode == BUFFER:
-        out[out_index] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
-    elif mode == GRID:
-        x, y, z = kx - lo[0], ky - lo[1], kz - lo[2]
-        if 0 <= x < dims[0] and 0 <= y < dims[1] and 0 <= z < dims[2]:
-            grid[(x * dims[1] + y) * dims[2] + z] = 1
+        out[out_index] = _pack(kx, ky, kz)
 
 
 @njit(cache=True, inline="always")
@@ -91,8 +91,8 @@ def _axis_init(direction, key, origin, resolution):  # type: ignore[no-untyped-d
 
 
 @njit(cache=True)
-def _trace(ox, oy, oz, ex, ey, ez, resolution, factor, mode, out, out_start, grid, lo, dims):  # type: ignore[no-untyped-def]
-    """computeRayKeys: counts the ray's keys, writes them packed into out[out_start:] or marks them in the grid."""
+def _trace(ox, oy, oz, ex, ey, ez, resolution, factor, mode, out, out_start):  # type: ignore[no-untyped-def]
+    """computeRayKeys: counts the ray's keys, and in BUFFER mode writes them packed into out[out_start:]."""
     kx = _coord_to_key(np.float64(ox), factor)
     ky = _coord_to_key(np.float64(oy), factor)
     kz = _coord_to_key(np.float64(oz), factor)
@@ -103,7 +103,7 @@ def _trace(ox, oy, oz, ex, ey, ez, resolution, factor, mode, out, out_start, gri
         return 0
     if kx == end_x and ky == end_y and kz == end_z:
         return 0
-    _emit(mode, out, out_start, grid, lo, dims, kx, ky, kz)
+    _emit(mode, out, out_start, kx, ky, kz)
     n = 1
     dx = np.float32(ex - ox)
     dy = np.float32(ey - oy)
@@ -132,7 +132,7 @@ def _trace(ox, oy, oz, ex, ey, ez, resolution, factor, mode, out, out_start, gri
             break
         if min(min(tmx, tmy), tmz) > length64:
             break
-        _emit(mode, out, out_start + n, grid, lo, dims, kx, ky, kz)
+        _emit(mode, out, out_start + n, kx, ky, kz)
         n += 1
     return n
 
@@ -143,13 +143,9 @@ def ray_key_counts(points, origin, resolution, maxrange):  # type: ignore[no-unt
     factor = 1.0 / resolution
     counts = np.zeros(points.shape[0], dtype=np.int64)
     dummy = np.zeros(1, dtype=np.uint64)
-    no_grid = np.zeros(1, dtype=np.uint8)
-    zeros = np.zeros(3, dtype=np.int64)
     for i in prange(points.shape[0]):
         ex, ey, ez, _ = _ray_end(points, origin, maxrange, i)
-        counts[i] = _trace(
-            origin[0], origin[1], origin[2], ex, ey, ez, resolution, factor, COUNT, dummy, 0, no_grid, zeros, zeros
-        )
+        counts[i] = _trace(origin[0], origin[1], origin[2], ex, ey, ez, resolution, factor, COUNT, dummy, 0)
     return counts
 
 
@@ -159,56 +155,16 @@ def ray_keys(points, origin, resolution, maxrange, offsets, total):  # type: ign
     factor = 1.0 / resolution
     out = np.empty(total, dtype=np.uint64)
     occupied = np.full(points.shape[0], EMPTY, dtype=np.uint64)
-    no_grid = np.zeros(1, dtype=np.uint8)
-    zeros = np.zeros(3, dtype=np.int64)
     for i in prange(points.shape[0]):
         ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
-        _trace(
-            origin[0],
-            origin[1],
-            origin[2],
-            ex,
-            ey,
-            ez,
-            resolution,
-            factor,
-            BUFFER,
-            out,
-            offsets[i],
-            no_grid,
-            zeros,
-            zeros,
-        )
+        _trace(origin[0], origin[1], origin[2], ex, ey, ez, resolution, factor, BUFFER, out, offsets[i])
         if is_hit:
             kx = _coord_to_key(np.float64(points[i, 0]), factor)
             ky = _coord_to_key(np.float64(points[i, 1]), factor)
             kz = _coord_to_key(np.float64(points[i, 2]), factor)
             if kx >= 0 and ky >= 0 and kz >= 0:
-                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
+                occupied[i] = _pack(kx, ky, kz)
     return out, occupied
-
-
-@njit(cache=True, parallel=True)
-def ray_ends(points, origin, resolution, maxrange):  # type: ignore[no-untyped-def]
-    """End point of every ray (cut at maxrange), and each point's occupied key (packed) or EMPTY."""
-    factor = 1.0 / resolution
-    ends = np.empty((points.shape[0], 3), dtype=np.float32)
-    occupied = np.full(points.shape[0], EMPTY, dtype=np.uint64)
-    for i in prange(points.shape[0]):
-        ex, ey, ez, is_hit = _ray_end(points, origin, maxrange, i)
-        ends[i, 0], ends[i, 1], ends[i, 2] = ex, ey, ez
-        if is_hit:
-            kx = _coord_to_key(np.float64(points[i, 0]), factor)
-            ky = _coord_to_key(np.float64(points[i, 1]), factor)
-            kz = _coord_to_key(np.float64(points[i, 2]), factor)
-            if kx >= 0 and ky >= 0 and kz >= 0:
-                occupied[i] = (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
-    return ends, occupied
-
-
-@njit(cache=True, inline="always")
-def _pack(kx, ky, kz):  # type: ignore[no-untyped-def]
-    return (np.uint64(kx) << np.uint64(32)) | (np.uint64(ky) << np.uint64(16)) | np.uint64(kz)
 
 
 @njit(cache=True, parallel=True)
@@ -539,65 +495,6 @@ def mark_occupied(grid, occupied, lo, dims):  # type: ignore[no-untyped-def]
         y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
         z = np.int64(k & mask) - lo[2]
         grid[(x * dims[1] + y) * dims[2] + z] = 2
-
-
-@njit(cache=True, parallel=True)
-def packed_bbox(free, occupied):  # type: ignore[no-untyped-def]
-    """Per-axis min and max key over packed keys (EMPTY entries ignored)."""
-    chunks = 64
-    mins = np.full((chunks, 3), 1 << 20, dtype=np.int64)
-    maxs = np.full((chunks, 3), -1, dtype=np.int64)
-    mask = np.uint64(0xFFFF)
-    total = free.shape[0] + occupied.shape[0]
-    size = (total + chunks - 1) // chunks
-    for c in prange(chunks):
-        for j in range(c * size, min(total, (c + 1) * size)):
-            k = free[j] if j < free.shape[0] else occupied[j - free.shape[0]]
-            if k == EMPTY:
-                continue
-            x = np.int64((k >> np.uint64(32)) & mask)
-            y = np.int64((k >> np.uint64(16)) & mask)
-            z = np.int64(k & mask)
-            if x < mins[c, 0]:
-                mins[c, 0] = x
-            if x > maxs[c, 0]:
-                maxs[c, 0] = x
-            if y < mins[c, 1]:
-                mins[c, 1] = y
-            if y > maxs[c, 1]:
-                maxs[c, 1] = y
-            if z < mins[c, 2]:
-                mins[c, 2] = z
-            if z > maxs[c, 2]:
-                maxs[c, 2] = z
-    lo = np.empty(3, dtype=np.int64)
-    hi = np.empty(3, dtype=np.int64)
-    for a in range(3):
-        lo[a] = mins[:, a].min()
-        hi[a] = maxs[:, a].max()
-    return lo, hi
-
-
-@njit(cache=True, parallel=True)
-def mark_grid(free, occupied, lo, dims):  # type: ignore[no-untyped-def]
-    """Dense scan-local grid over the keys' bounding box: 1 free, 2 occupied (occupied wins)."""
-    grid = np.zeros(dims[0] * dims[1] * dims[2], dtype=np.uint8)
-    mask = np.uint64(0xFFFF)
-    for i in prange(free.shape[0]):
-        k = free[i]
-        x = np.int64((k >> np.uint64(32)) & mask) - lo[0]
-        y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
-        z = np.int64(k & mask) - lo[2]
-        grid[(x * dims[1] + y) * dims[2] + z] = 1
-    for i in range(occupied.shape[0]):
-        k = occupied[i]
-        if k == EMPTY:
-            continue
-        x = np.int64((k >> np.uint64(32)) & mask) - lo[0]
-        y = np.int64((k >> np.uint64(16)) & mask) - lo[1]
-        z = np.int64(k & mask) - lo[2]
-        grid[(x * dims[1] + y) * dims[2] + z] = 2
-    return grid
 
 
 @njit(cache=True)

@@ -65,7 +65,8 @@ def table_morton(keys, values, chunks):  # type: ignore[no-untyped-def]
 
 @njit(cache=True, parallel=True)
 def radix_sort_pairs48(codes, values, chunks):  # type: ignore[no-untyped-def]
-    """48-bit codes sorted ascending with their float32 values (stable LSD radix sort, three 16-bit digits).
+    """48-bit codes sorted ascending with their values (any 1-D array; stable LSD radix sort, three 16-bit
+    digits). With ``np.arange(n)`` as the values it is an argsort.
 
     Each pass counts the digits of ``chunks`` parts of the input in parallel, then scatters the parts in parallel
     to disjoint places. Moving the values along costs less than sorting indices and gathering afterwards.
@@ -74,7 +75,7 @@ def radix_sort_pairs48(codes, values, chunks):  # type: ignore[no-untyped-def]
     keys = codes.copy()
     vals = values.copy()
     next_keys = np.empty(n, dtype=np.uint64)
-    next_vals = np.empty(n, dtype=np.float32)
+    next_vals = np.empty_like(values)
     size = (n + chunks - 1) // chunks
     places = np.empty((chunks, 65536), dtype=np.int64)
     digit_mask = np.uint64(0xFFFF)
@@ -126,33 +127,6 @@ def unmorton_keys(codes):  # type: ignore[no-untyped-def]
         out[i, 1] = _compact3(c >> np.uint64(1))
         out[i, 2] = _compact3(c >> np.uint64(2))
     return out
-
-
-@njit(cache=True)
-def radix_argsort48(codes):  # type: ignore[no-untyped-def]
-    """The order that sorts 48-bit codes ascending (stable): LSD radix sort, three 16-bit digits."""
-    n = codes.shape[0]
-    order = np.arange(n)
-    keys = codes.copy()
-    next_order = np.empty(n, dtype=np.int64)
-    next_keys = np.empty(n, dtype=np.uint64)
-    counts = np.empty(65536 + 1, dtype=np.int64)
-    for shift in (0, 16, 32):
-        s = np.uint64(shift)
-        counts[:] = 0
-        for i in range(n):
-            counts[np.int64((keys[i] >> s) & np.uint64(0xFFFF)) + 1] += 1
-        for digit in range(65536):
-            counts[digit + 1] += counts[digit]
-        for i in range(n):
-            d = np.int64((keys[i] >> s) & np.uint64(0xFFFF))
-            j = counts[d]
-            counts[d] = j + 1
-            next_keys[j] = keys[i]
-            next_order[j] = order[i]
-        keys, next_keys = next_keys, keys
-        order, next_order = next_order, order
-    return order
 
 
 @njit(cache=True)
@@ -241,5 +215,5 @@ def collapse_levels(fine_codes, fine_values, coarse_codes, coarse_depths, coarse
         level_values = parent_values[:n_parents]
         level_leaf = parent_leaf[:n_parents]
         depth -= 1
-    order = radix_argsort48(out_codes[:n_out])
-    return out_codes[order], out_depths[order], out_values[order], inner
+    codes, order = radix_sort_pairs48(out_codes[:n_out], np.arange(n_out), 1)
+    return codes, out_depths[order], out_values[order], inner

@@ -29,17 +29,21 @@ def _slot(key, mask):  # type: ignore[no-untyped-def]
     return np.int64(h & mask)
 
 
-@njit(cache=True)
-def table_find(keys, key):  # type: ignore[no-untyped-def]
-    mask = np.uint64(keys.shape[0] - 1)
+@njit(cache=True, inline="always")
+def _probe(keys, key, mask):  # type: ignore[no-untyped-def]
+    """The slot holding ``key``, or the empty slot where it goes (linear probing from its home slot)."""
     i = _slot(key, mask)
     while True:
         k = keys[i]
-        if k == key:
+        if k == key or k == EMPTY:  # noqa: SIM109 - plain comparisons compile to two integer compares
             return i
-        if k == EMPTY:
-            return -1
         i = (i + 1) & np.int64(mask)
+
+
+@njit(cache=True)
+def table_find(keys, key):  # type: ignore[no-untyped-def]
+    i = _probe(keys, key, np.uint64(keys.shape[0] - 1))
+    return i if keys[i] == key else -1
 
 
 @njit(cache=True)
@@ -63,12 +67,7 @@ def table_update(keys, values, updates, deltas, base_values, has_base, clamp_min
     for j in range(updates.shape[0]):
         key = updates[j]
         delta = deltas[j]
-        i = _slot(key, mask)
-        while True:
-            k = keys[i]
-            if k == key or k == EMPTY:  # noqa: SIM109 - plain comparisons compile to two integer compares
-                break
-            i = (i + 1) & np.int64(mask)
+        i = _probe(keys, key, mask)
         if keys[i] == key:
             value = values[i]
             # OctoMap's early abort: already clamped in the update's direction.
@@ -117,9 +116,7 @@ def table_set(keys, values, updates, new_values):  # type: ignore[no-untyped-def
     added = 0
     for j in range(updates.shape[0]):
         key = updates[j]
-        i = _slot(key, mask)
-        while keys[i] != key and keys[i] != EMPTY:
-            i = (i + 1) & np.int64(mask)
+        i = _probe(keys, key, mask)
         if keys[i] == EMPTY:
             keys[i] = key
             added += 1
