@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,13 +64,33 @@ class NearestPose:
         return np.asarray(self._poses[self._order[nearest]], np.float64)
 
 
-class InterpolatedPose:
-    """The pose of a trajectory at a stamp, interpolated between its neighbours (for a trajectory sampled faster
-    than it is looked up, such as odometry at camera stamps).
+def interpolated_pose_at(
+    stamps: Sequence[float] | NDArray[np.float64],
+    poses: Sequence[NDArray[np.float64]] | NDArray[np.float64],
+    stamp: float,
+    tolerance: float,
+    max_gap: float = math.inf,
+) -> NDArray[np.float64] | None:
+    """The pose at ``stamp`` of poses sorted by stamp, interpolated between its neighbours; None where they are
+    more than ``max_gap`` seconds apart. Before the first or after the last pose: the end pose within
+    ``tolerance`` seconds, else None."""
+    n = len(stamps)
+    if n == 0:
+        return None
+    index = bisect.bisect_left(stamps, stamp)
+    if index == 0 or index == n:
+        end = 0 if index == 0 else n - 1
+        return np.array(poses[end], np.float64) if abs(stamps[end] - stamp) <= tolerance else None
+    t0, t1 = float(stamps[index - 1]), float(stamps[index])
+    if t1 - t0 > max_gap:
+        return None
+    fraction = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
+    return interpolate_pose(poses[index - 1], poses[index], fraction)
 
-    None where the neighbours are more than ``max_gap`` seconds apart (the trajectory has a hole there) and
-    before the first or after the last pose by more than ``tolerance`` seconds (there, the end pose).
-    """
+
+class InterpolatedPose:
+    """:func:`interpolated_pose_at` over a trajectory (sorted once): for a trajectory sampled faster than it is
+    looked up, such as odometry at camera stamps."""
 
     def __init__(self, trajectory: Trajectory, max_gap: float, tolerance: float) -> None:
         order = np.argsort(trajectory.stamps, kind="stable")
@@ -78,19 +100,7 @@ class InterpolatedPose:
         self._tolerance = tolerance
 
     def __call__(self, stamp: float) -> NDArray[np.float64] | None:
-        n = len(self._stamps)
-        if n == 0:
-            return None
-        index = int(np.searchsorted(self._stamps, stamp))
-        if index == 0 or index == n:
-            end = 0 if index == 0 else n - 1
-            near = abs(self._stamps[end] - stamp) <= self._tolerance
-            return np.array(self._poses[end], np.float64) if near else None
-        t0, t1 = float(self._stamps[index - 1]), float(self._stamps[index])
-        if t1 - t0 > self._max_gap:
-            return None
-        fraction = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
-        return interpolate_pose(self._poses[index - 1], self._poses[index], fraction)
+        return interpolated_pose_at(self._stamps, self._poses, stamp, self._tolerance, self._max_gap)
 
 
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:

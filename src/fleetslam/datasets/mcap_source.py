@@ -22,7 +22,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
-from fleetslam.datasets.recorded_poses import camera_trajectory, mounting, odometry_trajectory, static_transforms
+from fleetslam.datasets.recorded_poses import (
+    camera_trajectory,
+    mounting,
+    odometry_trajectory,
+    stamp_seconds,
+    static_transforms,
+)
 from fleetslam.errors import DatasetError, MissingExtraError
 from fleetslam.trajectory import InterpolatedPose, Trajectory
 
@@ -44,10 +50,6 @@ def _reader(path: Path) -> Any:
     except ImportError as err:
         raise MissingExtraError("mcap", "record") from err
     return make_reader
-
-
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
 
 
 def image_to_array(msg: Any, where: str) -> NDArray[Any]:
@@ -141,7 +143,7 @@ class McapSource:
         # Stamps only on this pass; images are decoded again while iterating to keep memory flat.
         stamps: dict[str, list[float]] = {self.rgb_topic or "": [], self.depth_topic or "": []}
         for topic, msg in self._messages([self.rgb_topic or "", self.depth_topic or ""]):
-            stamps[topic].append(_stamp(msg))
+            stamps[topic].append(stamp_seconds(msg))
             if topic == self.depth_topic and not self.camera_frame:
                 self.camera_frame = str(msg.header.frame_id)
         from fleetslam.datasets.tum import associate
@@ -187,7 +189,7 @@ class McapSource:
             while next_out in pending and len(pending[next_out]) == 2:
                 pair = pending.pop(next_out)
                 where = f"{self.path} frame {next_out}"
-                stamp = _stamp(pair["rgb"])
+                stamp = stamp_seconds(pair["rgb"])
                 yield RGBDFrame(
                     next_out,
                     stamp,

@@ -25,8 +25,9 @@ def _frame(name: str) -> str:
     return str(name).lstrip("/")
 
 
-def _stamp(header: Any) -> float:
-    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
+def stamp_seconds(message: Any) -> float:
+    """A stamped message's header stamp in seconds."""
+    return float(message.header.stamp.sec) + 1e-9 * float(message.header.stamp.nanosec)
 
 
 def static_transforms(messages: Iterable[Any]) -> dict[str, tuple[str, NDArray[np.float64]]]:
@@ -71,7 +72,7 @@ def odometry_trajectory(messages: Iterable[Any]) -> tuple[str, str, Trajectory]:
         if not stamps:
             frame, child = _frame(message.header.frame_id), _frame(message.child_frame_id)
         p, q = message.pose.pose.position, message.pose.pose.orientation
-        stamps.append(_stamp(message.header))
+        stamps.append(stamp_seconds(message))
         poses.append(pose_from_quat([p.x, p.y, p.z], [q.x, q.y, q.z, q.w]))
     return frame, child, Trajectory.from_lists(stamps, poses)
 

@@ -7,7 +7,7 @@ import bisect
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import interpolate_pose
+from fleetslam.trajectory import interpolated_pose_at
 
 
 class PoseBuffer:
@@ -39,13 +39,4 @@ class PoseBuffer:
 
     def at(self, stamp: float) -> NDArray[np.float64] | None:
         """The pose at ``stamp`` (interpolated between neighbours), or None when outside the buffer."""
-        if not self._stamps:
-            return None
-        index = bisect.bisect_left(self._stamps, stamp)
-        if index == 0:
-            return self._poses[0].copy() if self._stamps[0] - stamp <= self.tolerance else None
-        if index == len(self._stamps):
-            return self._poses[-1].copy() if stamp - self._stamps[-1] <= self.tolerance else None
-        t0, t1 = self._stamps[index - 1], self._stamps[index]
-        fraction = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
-        return interpolate_pose(self._poses[index - 1], self._poses[index], fraction)
+        return interpolated_pose_at(self._stamps, self._poses, stamp, self.tolerance)
