@@ -427,28 +427,28 @@ def _convert(desc: Any, value: Any, store: Typestore, where: str) -> Any:
             raise MessageError(f"field '{where}': expected a mapping for {desc[1]}, got {value!r}")
         return _build(desc[1], value, store, where)
     sub, bound = desc[1]
-    if isinstance(value, np.ndarray) and sub[0] == Nodetype.BASE and sub[1][0] not in ("string", "bool"):
-        # A whole array at once (a map's payload, a grid): element by element would take seconds. Floats for an
-        # integer field take the element path, which truncates each as int() does.
-        target = np.dtype(_numpy_dtype(sub[1][0]))
-        if value.ndim == 1 and (value.dtype.kind in "biu" or (value.dtype.kind == "f" and target.kind == "f")):
-            if kind == Nodetype.ARRAY and len(value) != bound:
-                raise MessageError(f"field '{where}': expected {bound} values, got {len(value)}")
-            if kind == Nodetype.SEQUENCE and bound and len(value) > bound:
-                raise MessageError(f"field '{where}': at most {bound} values allowed, got {len(value)}")
-            if target.kind in "iu" and len(value):
-                info = np.iinfo(target)
-                if value.min() < info.min or value.max() > info.max:
-                    raise MessageError(f"field '{where}': values outside the range of {sub[1][0]}")
-            return value.astype(target)
-    if isinstance(value, np.ndarray):
+    base = sub[1][0] if sub[0] == Nodetype.BASE else ""
+    numeric = base not in ("", "string", "bool")
+    # A numeric array stays whole (a map's payload, a grid): element by element takes seconds. Floats for an
+    # integer field go element by element, which truncates each as int() does.
+    if isinstance(value, np.ndarray) and not (
+        numeric and value.ndim == 1
+        and (value.dtype.kind in "biu" or (value.dtype.kind == "f" and base.startswith("float")))
+    ):  # fmt: skip
         value = value.tolist()
-    if not isinstance(value, list | tuple):
+    if not isinstance(value, list | tuple | np.ndarray):
         raise MessageError(f"field '{where}': expected a list, got {value!r}")
     if kind == Nodetype.ARRAY and len(value) != bound:
         raise MessageError(f"field '{where}': expected {bound} values, got {len(value)}")
     if kind == Nodetype.SEQUENCE and bound and len(value) > bound:
         raise MessageError(f"field '{where}': at most {bound} values allowed, got {len(value)}")
+    if isinstance(value, np.ndarray):
+        target = np.dtype(_numpy_dtype(base))
+        if target.kind in "iu" and len(value):
+            info = np.iinfo(target)
+            if value.min() < info.min or value.max() > info.max:
+                raise MessageError(f"field '{where}': values outside the range of {base}")
+        return value.astype(target)
     items = [_convert(sub, v, store, f"{where}[{i}]") for i, v in enumerate(value)]
     if sub[0] == Nodetype.BASE and sub[1][0] != "string":
         return np.asarray(items, dtype=_numpy_dtype(sub[1][0]))
