@@ -1,27 +1,42 @@
 """The operator console of a running demo in Chromium: the real simulated robots, maps and camera.
 
-Holds the deadman and W: c3po's ground-truth pose moves forward; releases: it stops within 0.5 s; closes the
-page while driving: the robot stops within its command timeout.
+Holds the deadman and D: the console streams turn commands and c3po's ground truth turns right in place;
+releases: it stands within 0.6 s; closes the page while turning: it stands within its command timeout plus
+braking. Motion is judged in simulated time, from the simulator's stamps and twist (the wall-clock instants of
+the key presses are mapped to simulated time through each message's publication timestamp), so neither a slow
+simulation nor a lagging subscriber can fail it. It turns in place because driving forward from wherever the
+autopilot left the robot may run it into a wall.
 """
 
 from __future__ import annotations
 
 import io
-import math
-import socket
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
+from fleetslam.middleware.typesys import ns_from_stamp
 
 from ..support import free_port, wait_until
 from .conftest import save_screenshot
 
 pytest.importorskip("mujoco")
+
+MAX_W = 0.8  # the console's default max ω slider (rad/s); D asks for -MAX_W
+STILL = 0.05  # m/s and rad/s: standing
+WATCHDOG_STOP = 1.0  # s: the robot's command timeout (0.5 s) plus braking
+AUTOPILOT_RESUMES = 3.0  # s after the last command the robot received
+
+
+class Truth(NamedTuple):
+    published: float  # wall clock (s, time.time) when the simulator published it
+    t: float  # simulated time (s)
+    v: float  # forward speed (m/s)
+    w: float  # yaw rate (rad/s)
 
 
 def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> None:
@@ -29,64 +44,97 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
 
     page, errors = browser_page
     router_port, port = free_port(), free_port()
+    stop = threading.Event()
     demo = threading.Thread(
         target=run_demo,
-        kwargs={"robots": ["c3po", "r2d2"], "duration_s": 50.0, "out_dir": tmp_path / "demo", "port": port,
-                "router_port": router_port, "output": io.StringIO()},
+        kwargs={"robots": ["c3po", "r2d2"], "duration_s": 120.0, "out_dir": tmp_path / "demo", "port": port,
+                "router_port": router_port, "output": io.StringIO(), "stop": stop},
         daemon=True,
     )  # fmt: skip
     demo.start()
-    truth: list[tuple[float, float, float, float]] = []
-    with Context(
-        router=f"tcp/127.0.0.1:{router_port}", listen="tcp/127.0.0.1:0", environ={}, router_timeout_s=30
-    ) as ctx:
-        watcher = Node("watcher", context=ctx, statistics_period_s=0)
+    truth: list[Truth] = []
+    commands: list[tuple[float, float, float]] = []  # (published, v, ω)
+    try:
+        with Context(
+            router=f"tcp/127.0.0.1:{router_port}", listen="tcp/127.0.0.1:0", environ={}, router_timeout_s=30
+        ) as ctx:
+            watcher = Node("watcher", context=ctx, statistics_period_s=0)
 
-        def on_truth(msg: Any) -> None:
-            p, q = msg.pose.pose.position, msg.pose.pose.orientation
-            yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-            truth.append((time.monotonic(), p.x, p.y, yaw))
+            def on_truth(msg: Any, info: MessageInfo) -> None:
+                twist, published = msg.twist.twist, info.source_timestamp_ns * 1e-9
+                truth.append(Truth(published, ns_from_stamp(msg.header.stamp) * 1e-9, twist.linear.x, twist.angular.z))
 
-        watcher.create_subscription("nav_msgs/msg/Odometry", "/c3po/ground_truth/odom", on_truth, QoSProfile(depth=100))
+            depth = QoSProfile(depth=100)
+            watcher.create_subscription("nav_msgs/msg/Odometry", "/c3po/ground_truth/odom", on_truth, depth)
+            watcher.create_subscription(
+                "geometry_msgs/msg/Twist", "/c3po/cmd_vel",
+                lambda m, info: commands.append((info.source_timestamp_ns * 1e-9, m.linear.x, m.angular.z)), depth,
+            )  # fmt: skip
 
-        def console_up() -> bool:
-            with socket.socket() as probe:
-                return probe.connect_ex(("127.0.0.1", port)) == 0
+            def sim_now() -> float:
+                return truth[-1].t if truth else 0.0
 
-        assert wait_until(console_up, 60.0), "the demo's console never came up"
-        page.goto(f"http://127.0.0.1:{port}/", timeout=60000)
-        page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
-        page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)
-        assert page.evaluate("window.fleetslam.selected") == "c3po"
+            def sim_time_at(wall: float) -> float:
+                """The simulator's time at a wall-clock instant, whatever the delivery lag on a loaded machine."""
+                assert wait_until(lambda: bool(truth) and truth[-1].published >= wall, 60.0), "ground truth stalled"
+                return max(s.t for s in truth if s.published <= wall)
 
-        def speed_since(t0: float) -> float:
-            samples = [s for s in truth if s[0] >= t0]
-            if len(samples) < 2:
-                return math.nan
-            (ta, xa, ya, _), (tb, xb, yb, _) = samples[0], samples[-1]
-            return math.hypot(xb - xa, yb - ya) / max(tb - ta, 1e-3)
+            def turning_right_since(t0: float) -> bool:
+                return any(s.t > t0 and s.w < -0.6 * MAX_W and abs(s.v) < 0.1 for s in reversed(truth[-500:]))
 
-        page.keyboard.down("Space")
-        page.keyboard.down("w")
-        pressed = time.monotonic()
-        time.sleep(2.0)
-        start = next(s for s in truth if s[0] >= pressed + 0.8)
-        end = truth[-1]
-        forward = (end[1] - start[1]) * math.cos(start[3]) + (end[2] - start[2]) * math.sin(start[3])
-        assert forward > 0.2, f"moved {forward:.3f} m forward while W was held"
-        save_screenshot(page, tmp_path, "demo-console-driving.png")
-        page.keyboard.up("w")
-        page.keyboard.up("Space")
-        released = time.monotonic()
-        time.sleep(1.2)
-        assert speed_since(released + 0.5) < 0.05, "still moving 0.5 s after releasing the deadman"
-        page.keyboard.down("Space")
-        page.keyboard.down("w")
-        time.sleep(1.5)
-        page.close()
-        closed = time.monotonic()
-        time.sleep(1.5)
-        # Within the command timeout (0.5 s) plus braking, the robot stands; the autopilot waits 3 s to resume.
-        assert speed_since(closed + 1.0) < 0.05, "still driving after the page was closed"
-    demo.join(120)
+            def turning_report(t0: float, wall: float) -> str:
+                since = [s for s in truth if s.t > t0]
+                sent = [c for c in commands if c[0] >= wall]
+                slowest = min(since, key=lambda s: s.w, default=None)
+                return f"{len(sent)} commands sent since, fastest right turn {slowest}, last {truth[-1:]}"
+
+            def assert_stands_after(event: float, within: float, what: str) -> None:
+                """From ``within`` s after ``event`` (simulated) until the autopilot may take over again, c3po
+                stands. Should the console's stream have stalled before the event (a starved browser on a
+                loaded machine), the robot's own watchdog must have stopped it instead."""
+                assert wait_until(lambda: sim_now() >= event + 2.0, 60.0), f"simulated time stalled at {sim_now()}"
+                last_command = sim_time_at(commands[-1][0])
+                start = event + within if last_command >= event else last_command + WATCHDOG_STOP
+                end = min(event + 2.0, last_command + AUTOPILOT_RESUMES - 0.5)
+                window = [s for s in truth if start <= s.t <= end]
+                assert window, f"no ground truth between {start:.2f} s and {end:.2f} s"
+                moving = [s for s in window if max(abs(s.v), abs(s.w)) >= STILL]
+                assert not moving, f"moving {what} at {event:.2f} s (last command {last_command:.2f}): {moving[:3]}"
+
+            assert wait_until(lambda: sim_now() > 0, 90.0), "the demo's simulator never published ground truth"
+            page.goto(f"http://127.0.0.1:{port}/", timeout=60000)
+            page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
+            page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)
+            assert page.evaluate("window.fleetslam.selected") == "c3po"
+
+            page.keyboard.down("Space")
+            page.keyboard.down("d")
+            wall = time.time()
+            pressed = sim_time_at(wall)
+            assert wait_until(lambda: turning_right_since(pressed), 30.0), (
+                f"c3po did not turn in place while Space+D was held: {turning_report(pressed, wall)}"
+            )
+            assert (0.0, -MAX_W) in [(round(v, 6), round(w, 6)) for _, v, w in commands], commands[-5:]
+            save_screenshot(page, tmp_path, "demo-console-driving.png")
+            page.keyboard.up("d")
+            page.keyboard.up("Space")
+            released = sim_time_at(time.time())
+            assert_stands_after(released, 0.6, "after the deadman was released")
+
+            page.keyboard.down("Space")
+            page.keyboard.down("d")
+            wall = time.time()
+            pressed = sim_time_at(wall)
+            assert wait_until(lambda: turning_right_since(pressed), 30.0), (
+                f"c3po did not turn again: {turning_report(pressed, wall)}"
+            )
+            page.close()
+            closed = sim_time_at(time.time())
+            # The console stops its stream (disconnect, or 0.3 s without browser messages); the robot's own
+            # watchdog would stop it anyway.
+            assert_stands_after(closed, WATCHDOG_STOP, "after the page was closed")
+    finally:
+        stop.set()
+        demo.join(120)
+    assert not demo.is_alive(), "the demo did not stop"
     assert not errors, errors

@@ -211,8 +211,10 @@ def run_demo(
     mode: str = "sim",
     resolution: str = "320x240",
     output: TextIO = sys.stdout,
+    stop: threading.Event | None = None,
 ) -> DemoResult:
-    """Run the demo until ``duration_s`` passes (None: until Ctrl-C), then write the results to ``out_dir``."""
+    """Run the demo until ``duration_s`` passes (None: until Ctrl-C) or ``stop`` is set, then write the results
+    to ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
     if mode == "sim":
@@ -235,7 +237,11 @@ def run_demo(
             supervisor_thread.start()
             try:
                 while duration_s is None or time.monotonic() - start < duration_s:
-                    time.sleep(1.0)
+                    if stop is None:
+                        time.sleep(1.0)
+                    elif stop.wait(1.0):
+                        print("[demo] stopping", file=output, flush=True)
+                        break
                     elapsed = time.monotonic() - start
                     with monitor.lock:
                         totals = monitor.table.per_agent()
