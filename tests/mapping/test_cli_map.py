@@ -37,12 +37,16 @@ def test_build_from_graph_matches_octomap(tmp_path: Path, capsys: pytest.Capture
     write_scan_graph(graph, nodes)
     out = tmp_path / "room.bt"
     assert main(["map", "build", str(graph), "--resolution", "0.1", "-o", str(out), "--no-progress"]) == 0
-    assert "2 scans" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "2 scans" in printed
     reference = octomap.OcTree(0.1)
     for node in nodes:
         reference.insertPointCloud(node.world_points().astype(np.float64), node.pose[:3, 3].copy())
     expected = reference.writeBinary()
     assert out.read_bytes() == expected
+    in_file = octomap.OcTree(0.1)
+    in_file.readBinary(expected)
+    assert f" {in_file.size()} nodes" in printed  # the file's count, not the live tree's
 
 
 def test_build_from_points_with_origin_and_max_range(tmp_path: Path) -> None:

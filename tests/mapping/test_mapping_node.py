@@ -9,6 +9,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pytest
 
 from fleetslam.geometry import T_BODY_OPTICAL, pose_to_quat
 from fleetslam.mapping.node import MappingNode, MappingNodeConfig
@@ -60,6 +61,9 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     assert save.wait_for_service(5.0)
     response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path=str(tmp_path / "c3po.bt")), timeout=10)
     assert response.success, response.message
+    octomap = pytest.importorskip("octomap", reason="octomap-python is the oracle")
+    in_file = octomap.OcTree(str(tmp_path / "c3po.bt").encode())
+    assert response.message.startswith(f"{in_file.size()} nodes written"), response.message
     saved = OccupancyOctree.read(tmp_path / "c3po.bt")
     assert saved.is_occupied([2.025, 0.025, 0.525])
     reset = viewer.create_client("std_srvs/srv/Trigger", "/c3po/map/reset")

@@ -120,11 +120,9 @@ def run_build(args: argparse.Namespace) -> int:
     return _build_from_scans(args, kind, output_kind)
 
 
-def _write_tree(tree: OccupancyOctree, path: Path, output_kind: str) -> None:
-    if output_kind == "bt":
-        tree.write_binary(path)
-    else:
-        tree.write(path)
+def _write_tree(tree: OccupancyOctree, path: Path, output_kind: str) -> int:
+    """Write the map; the number of nodes in the file (a .bt's max-likelihood tree prunes further)."""
+    return tree.write_binary(path) if output_kind == "bt" else tree.write(path)
 
 
 def _build_from_scans(args: argparse.Namespace, kind: str, output_kind: str) -> int:
@@ -140,8 +138,8 @@ def _build_from_scans(args: argparse.Namespace, kind: str, output_kind: str) -> 
         for scan in scans:
             tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
             bar.update(len(scan.points))
-    _write_tree(tree, args.output, output_kind)
-    print(f"{args.output}: {len(scans)} scans, {total} points, {tree.num_nodes()} nodes at {args.resolution} m")
+    written = _write_tree(tree, args.output, output_kind)
+    print(f"{args.output}: {len(scans)} scans, {total} points, {written} nodes at {args.resolution} m")
     return 0
 
 
@@ -167,11 +165,11 @@ def _build_from_rgbd(args: argparse.Namespace, kind: str, output_kind: str) -> i
             tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
             bar.update(scans.counts.frames - bar.n)
         bar.update(scans.counts.frames - bar.n)
-    _write_tree(tree, args.output, output_kind)
+    written = _write_tree(tree, args.output, output_kind)
     used = scans.counts
     every = f" (--every {args.every})" if args.every > 1 else ""
     print(
-        f"{args.output}: {used.used} of {used.frames} frames{every}, {used.points} points, {tree.num_nodes()} nodes "
+        f"{args.output}: {used.used} of {used.frames} frames{every}, {used.points} points, {written} nodes "
         f"at {args.resolution} m"
     )
     skipped = scans.skipped_summary()
@@ -230,12 +228,12 @@ def run_convert(args: argparse.Namespace) -> int:
     output_kind = _output_kind(args.output)
     tree = read_octree_file(args.input)
     if output_kind == "bt":
-        write_bt(args.output, tree.resolution, tree.leaves)
+        written = write_bt(args.output, tree.resolution, tree.leaves)
     else:
         if tree.kind == "bt":
             log.info("%s holds only max-likelihood states; the .ot file gets clamped log-odds", args.input)
-        write_ot(args.output, tree.resolution, tree.leaves)
-    print(f"{args.input} ({tree.kind}) -> {args.output} ({output_kind})")
+        written = write_ot(args.output, tree.resolution, tree.leaves)
+    print(f"{args.input} ({tree.kind}) -> {args.output} ({output_kind}, {written} nodes)")
     return 0
 
 

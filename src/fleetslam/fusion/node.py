@@ -118,7 +118,7 @@ class FleetMapNode:
         path = Path(request.path or self.config.save_path)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self.fleet.fused().write_binary(path)
+            written = self.fleet.fused().write_binary(path)
         except OSError as err:
             return response(success=False, message=f"{path}: {err.strerror}", path=str(path))
-        return response(success=True, message=f"agents {self.fleet.agents()}", path=str(path))
+        return response(success=True, message=f"{written} nodes written, agents {self.fleet.agents()}", path=str(path))

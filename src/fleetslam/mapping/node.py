@@ -181,13 +181,14 @@ class MappingNode:
         try:
             self.mapper.integrate()
             path.parent.mkdir(parents=True, exist_ok=True)
-            if path.suffix == ".ot":
-                self.mapper.tree.write(path)
-            else:
-                self.mapper.tree.write_binary(path)
+            tree = self.mapper.tree
+            written = tree.write(path) if path.suffix == ".ot" else tree.write_binary(path)
         except OSError as err:
             return response(success=False, message=f"{path}: {err.strerror}", path=str(path))
-        return response(success=True, message=f"{self.mapper.tree.num_nodes()} nodes", path=str(path))
+        # A .bt holds the max-likelihood tree, which prunes further than the live one: say both.
+        return response(
+            success=True, message=f"{written} nodes written (live tree: {tree.num_nodes()})", path=str(path)
+        )
 
     def on_clear_bbx(self, request: Any) -> Any:
         lo = [request.min.x, request.min.y, request.min.z]

@@ -175,25 +175,34 @@ def write_bt(
     clamp_min_log_odds: float = DEFAULT_CLAMP_MIN,
     clamp_max_log_odds: float = DEFAULT_CLAMP_MAX,
     occupancy_threshold_log_odds: float = 0.0,
-) -> None:
-    """What C++ writeBinary() writes: the max-likelihood, pruned tree (computed on copies of ``leaves``)."""
+) -> int:
+    """What C++ writeBinary() writes: the max-likelihood, pruned tree (computed on copies of ``leaves``).
+
+    Returns the number of nodes written (the header's size), usually fewer than the live tree's: max-likelihood
+    values make more siblings equal.
+    """
     pruned = max_likelihood_pruned(leaves, clamp_min_log_odds, clamp_max_log_odds, occupancy_threshold_log_odds)
     body, count = _encode(pruned, occupancy_threshold_log_odds, full=False)
     _write(target, _header(BT_HEADER, count, resolution), body)
+    return count
 
 
 def write_bt_const(
     target: str | Path | BinaryIO, resolution: float, leaves: LeafArrays, *, occupancy_threshold_log_odds: float = 0.0
-) -> None:
-    """What C++ writeBinaryConst() writes: the tree as it is, leaves classified by the threshold."""
+) -> int:
+    """What C++ writeBinaryConst() writes: the tree as it is, leaves classified by the threshold; returns the
+    number of nodes written."""
     body, count = _encode(leaves, occupancy_threshold_log_odds, full=False)
     _write(target, _header(BT_HEADER, count, resolution), body)
+    return count
 
 
-def write_ot(target: str | Path | BinaryIO, resolution: float, leaves: LeafArrays) -> None:
-    """A full `.ot` file of the tree as it is (inner nodes hold the max of their children)."""
+def write_ot(target: str | Path | BinaryIO, resolution: float, leaves: LeafArrays) -> int:
+    """A full `.ot` file of the tree as it is (inner nodes hold the max of their children); returns the number
+    of nodes written."""
     body, count = _encode(leaves, 0.0, full=True)
     _write(target, _header(OT_HEADER, count, resolution), body)
+    return count
 
 
 def bt_bytes(resolution: float, leaves: LeafArrays, **sensor_model: float) -> bytes:

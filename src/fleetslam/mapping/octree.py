@@ -475,11 +475,12 @@ class OccupancyOctree:
         )  # fmt: skip
 
     # -- files -------------------------------------------------------------------------------------------------
-    def write_binary(self, path: str | Path) -> None:
-        """Write a `.bt` file as OctoMap's writeBinary() does (max-likelihood, pruned), leaving this tree as is."""
+    def write_binary(self, path: str | Path) -> int:
+        """Write a `.bt` file as OctoMap's writeBinary() does (max-likelihood, pruned), leaving this tree as is;
+        returns the number of nodes in the file."""
         from fleetslam.mapping.octomap_io import write_bt
 
-        write_bt(
+        return write_bt(
             path,
             self.resolution,
             self.leaves(),
@@ -488,11 +489,11 @@ class OccupancyOctree:
             occupancy_threshold_log_odds=float(self.threshold_log),
         )
 
-    def write(self, path: str | Path) -> None:
-        """Write a full `.ot` file (every node's log-odds)."""
+    def write(self, path: str | Path) -> int:
+        """Write a full `.ot` file (every node's log-odds); returns the number of nodes in the file."""
         from fleetslam.mapping.octomap_io import write_ot
 
-        write_ot(path, self.resolution, self.leaves())
+        return write_ot(path, self.resolution, self.leaves())
 
     @classmethod
     def read(cls, path: str | Path, **sensor_model: Any) -> OccupancyOctree:
