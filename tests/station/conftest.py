@@ -36,6 +36,8 @@ def pointcloud2(points: np.ndarray) -> Any:
 class RobotUnderTest:
     node: Node
     commands: list[tuple[float, float, float]] = field(default_factory=list)
+    """(published, v, ω): ``published`` is the console's publication time (``time.time()`` clock, from the
+    message's attachment), so a slow delivery on a loaded machine cannot make a command look late."""
     estop_requests: list[bool] = field(default_factory=list)
     frames: int = 0
 
@@ -46,7 +48,9 @@ def test_robot(make_context: Callable[..., Context]) -> Iterator[RobotUnderTest]
     robot = RobotUnderTest(node)
     twist_type = "geometry_msgs/msg/Twist"
     node.create_subscription(
-        twist_type, "cmd_vel", lambda m: robot.commands.append((time.monotonic(), m.linear.x, m.angular.z))
+        twist_type,
+        "cmd_vel",
+        lambda m, info: robot.commands.append((info.source_timestamp_ns * 1e-9, m.linear.x, m.angular.z)),
     )
     response = get_type("std_srvs/srv/SetBool_Response")
 

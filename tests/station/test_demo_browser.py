@@ -101,19 +101,23 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
                 moving = [s for s in window if max(abs(s.v), abs(s.w)) >= STILL]
                 assert not moving, f"moving {what} at {event:.2f} s (last command {last_command:.2f}): {moving[:3]}"
 
+            def turn_right_in_place(attempt: str) -> None:
+                """Hold Space+D until the ground truth shows c3po turning in place."""
+                page.keyboard.down("Space")
+                page.keyboard.down("d")
+                wall = time.time()
+                pressed = sim_time_at(wall)
+                assert wait_until(lambda: turning_right_since(pressed), 30.0), (
+                    f"c3po did not turn in place ({attempt}) with Space+D held: {turning_report(pressed, wall)}"
+                )
+
             assert wait_until(lambda: sim_now() > 0, 90.0), "the demo's simulator never published ground truth"
             page.goto(f"http://127.0.0.1:{port}/", timeout=60000)
             page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
             page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)
             assert page.evaluate("window.fleetslam.selected") == "c3po"
 
-            page.keyboard.down("Space")
-            page.keyboard.down("d")
-            wall = time.time()
-            pressed = sim_time_at(wall)
-            assert wait_until(lambda: turning_right_since(pressed), 30.0), (
-                f"c3po did not turn in place while Space+D was held: {turning_report(pressed, wall)}"
-            )
+            turn_right_in_place("first")
             assert (0.0, -MAX_W) in [(round(v, 6), round(w, 6)) for _, v, w in commands], commands[-5:]
             save_screenshot(page, tmp_path, "demo-console-driving.png")
             page.keyboard.up("d")
@@ -121,13 +125,7 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
             released = sim_time_at(time.time())
             assert_stands_after(released, 0.6, "after the deadman was released")
 
-            page.keyboard.down("Space")
-            page.keyboard.down("d")
-            wall = time.time()
-            pressed = sim_time_at(wall)
-            assert wait_until(lambda: turning_right_since(pressed), 30.0), (
-                f"c3po did not turn again: {turning_report(pressed, wall)}"
-            )
+            turn_right_in_place("again")
             page.close()
             closed = sim_time_at(time.time())
             # The console stops its stream (disconnect, or 0.3 s without browser messages); the robot's own
