@@ -1,6 +1,7 @@
-"""A program that exits with contexts still open exits cleanly: no hang, no abort inside Zenoh's native code.
+"""A program that exits with contexts still open exits cleanly: no hang, no abort inside Zenoh's native code,
+and no context closed under a thread that still uses it.
 
-Without the exit hook a main-thread context with a subscription keeps the interpreter waiting for its callback
+Without the exit hooks a main-thread context with a subscription keeps the interpreter waiting for its callback
 thread forever, and a context owned by a busy daemon thread is torn down mid-callback at finalization, which
 aborts the process ("FATAL: exception not rethrown", exit 134), as a test process running the demo did.
 """
@@ -60,3 +61,44 @@ def test_open_contexts_close_at_exit() -> None:
         )
         assert done.returncode == 0, done.stderr[-2000:]
         assert int(done.stdout.split()[-1]) >= 200, done.stdout
+
+
+WORKER_PROGRAM = textwrap.dedent(
+    """
+    import sys, threading, time
+    from fleetslam.middleware import Context, Node, QoSProfile, Router
+    from fleetslam.middleware.typesys import get_type
+
+    endpoint = f"tcp/127.0.0.1:{sys.argv[1]}"
+    router = Router([endpoint])
+    ctx = Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={})
+    node = Node("worker", context=ctx, statistics_period_s=0)
+    received = []
+    node.create_subscription("std_msgs/msg/String", "/work", received.append, QoSProfile(depth=100))
+    publisher = node.create_publisher("std_msgs/msg/String", "/work")
+    main_done = threading.Event()
+
+    def worker():  # a non-daemon thread that goes on using the context after the main thread has returned
+        main_done.wait()
+        time.sleep(0.5)
+        for i in range(20):
+            publisher.publish(get_type("std_msgs/msg/String")(data=str(i)))
+            time.sleep(0.01)
+        deadline = time.monotonic() + 10
+        while len(received) < 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        print("worker received", len(received), flush=True)
+        ctx.close()
+
+    threading.Thread(target=worker).start()
+    main_done.set()
+    """
+)
+
+
+def test_exit_waits_for_threads_that_still_use_a_context() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", WORKER_PROGRAM, str(free_port())], capture_output=True, text=True, timeout=30
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["worker", "received", "20"], done.stdout + done.stderr[-2000:]

@@ -29,13 +29,13 @@ import math
 import os
 import threading
 import time
-import weakref
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from fleetslam.errors import ConfigError, MiddlewareError, RouterUnreachableError
+from fleetslam.middleware.lifetime import close_at_exit
 from fleetslam.middleware.names import domain_id_from_env, namespace_from_env, normalize_namespace
 
 if TYPE_CHECKING:
@@ -47,33 +47,6 @@ log = logging.getLogger(__name__)
 DEFAULT_ROUTER = "tcp/localhost:7447"
 DEFAULT_LISTEN = "tcp/localhost:0"
 DEFAULT_ROUTER_TIMEOUT_S = 2.0
-
-_open_contexts: weakref.WeakSet[Context] = weakref.WeakSet()
-
-
-def _close_open_contexts() -> None:
-    """Close the contexts a program left open, while its threads still run.
-
-    A subscription's callbacks run on threads that live as long as the session: left open, the interpreter
-    waits for them forever at exit, or (when they were started from a daemon thread) finalization tears them
-    down inside Zenoh's native code, which aborts the process ("FATAL: exception not rethrown").
-    """
-    for context in list(_open_contexts):
-        try:
-            context.close()
-        except Exception as err:  # exiting anyway: report, never mask the program's own exit status
-            log.warning("closing a middleware context at exit: %s", err)
-
-
-# threading's exit hooks run before the interpreter joins non-daemon threads and stops daemon ones; `atexit`
-# would run after, too late for both.
-_register_exit_hook = getattr(threading, "_register_atexit", None)
-if _register_exit_hook is not None:
-    _register_exit_hook(_close_open_contexts)
-else:  # pragma: no cover - CPython has had the hook since 3.9
-    import atexit
-
-    atexit.register(_close_open_contexts)
 
 
 def split_endpoints(text: str | Sequence[str]) -> list[str]:
@@ -234,7 +207,7 @@ class Context:
         self._closed = threading.Event()
         self._graph: Graph | None = None
         self._graph_lock = threading.Lock()
-        _open_contexts.add(self)
+        close_at_exit(self)
         if router_timeout_s is None:
             router_timeout_s = router_timeout_from_env(environ)
         if router_timeout_s >= 0 and mode != "router":

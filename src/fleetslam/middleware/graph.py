@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import zenoh
 
 from fleetslam.errors import MessageError
+from fleetslam.middleware.lifetime import declare_with_callback
 from fleetslam.middleware.wire import LIVELINESS_PREFIX, EntityKind, LivelinessToken, QoSProfile
 
 log = logging.getLogger(__name__)
@@ -66,7 +67,9 @@ class Graph:
         self._changed = threading.Condition(self._lock)
         self._listeners: list[Callable[[str, LivelinessToken], None]] = []
         key = f"{LIVELINESS_PREFIX}/{domain_id}/**"
-        self._subscriber = session.liveliness().declare_subscriber(key, self._on_sample, history=True)
+        self._subscriber = declare_with_callback(
+            lambda: session.liveliness().declare_subscriber(key, self._on_sample, history=True)
+        )
         for reply in session.liveliness().get(key, timeout=2.0):
             if reply.ok is not None:
                 self._on_sample(reply.ok)

@@ -39,6 +39,7 @@ from fleetslam.config import ConfigModel, load_config
 from fleetslam.errors import MessageError, MiddlewareError, ServiceError
 from fleetslam.middleware import typesys
 from fleetslam.middleware.context import Context
+from fleetslam.middleware.lifetime import declare_with_callback
 from fleetslam.middleware.names import (
     RosArgs,
     agent_of,
@@ -313,11 +314,13 @@ class Subscription(_Entity):
                 if qos.reliability == "reliable"
                 else None
             )
-            self._subscriber: Any = zenoh.ext.declare_advanced_subscriber(
-                session, self.key, self._on_sample, history=history, recovery=recovery, subscriber_detection=True
+            self._subscriber: Any = declare_with_callback(
+                lambda: zenoh.ext.declare_advanced_subscriber(
+                    session, self.key, self._on_sample, history=history, recovery=recovery, subscriber_detection=True
+                )
             )
         else:
-            self._subscriber = session.declare_subscriber(self.key, self._on_sample)
+            self._subscriber = declare_with_callback(lambda: session.declare_subscriber(self.key, self._on_sample))
         if not self.any_type:
             self._declare_token()
 
@@ -443,7 +446,10 @@ class Service(_Entity):
         self.request_type, self.response_type = typesys.service_types(type_name)
         self.handler = handler
         self.key = topic_key(node.context.domain_id, name, type_name)
-        self._queryable = node.context.session.declare_queryable(self.key, self._on_query, complete=True)
+        session = node.context.session
+        self._queryable = declare_with_callback(
+            lambda: session.declare_queryable(self.key, self._on_query, complete=True)
+        )
         self._declare_token()
 
     def _on_query(self, query: zenoh.Query) -> None:
