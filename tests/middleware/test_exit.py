@@ -11,6 +11,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 from ..support import free_port
 
@@ -102,3 +103,40 @@ def test_exit_waits_for_threads_that_still_use_a_context() -> None:
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["worker", "received", "20"], done.stdout + done.stderr[-2000:]
+
+
+SLOW_CALLBACK_PROGRAM = textwrap.dedent(
+    """
+    import sys, threading, time
+    from pathlib import Path
+    from fleetslam.middleware import Context, Node, Router
+
+    endpoint = f"tcp/127.0.0.1:{sys.argv[1]}"
+    marker = Path(sys.argv[2])
+    router = Router([endpoint])
+    started = threading.Event()
+
+    def slow_callback():  # longer than the executor's 2 s join when the node is destroyed
+        started.set()
+        time.sleep(3.0)
+        marker.write_text("finished")
+
+    with Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}) as ctx:
+        node = Node("slow", context=ctx, statistics_period_s=0)
+        timer = node.create_timer(0.05, slow_callback)
+        started.wait(10)
+        timer.cancel()
+    """
+)
+
+
+def test_exit_waits_for_a_callback_still_running(tmp_path: Path) -> None:
+    # A daemon executor still inside a callback when the interpreter finalizes is killed mid-call (inside Zenoh's
+    # native code that aborts the process); the exit waits for it instead.
+    marker = tmp_path / "finished"
+    done = subprocess.run(
+        [sys.executable, "-c", SLOW_CALLBACK_PROGRAM, str(free_port()), str(marker)],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert marker.exists() and marker.read_text() == "finished"

@@ -7,7 +7,9 @@ inside Zenoh's native code, which aborts the process ("FATAL: exception not reth
 
 So: ``threading``'s exit hook, which runs before the interpreter joins non-daemon threads, closes the open
 contexts unless a thread of the program's own is still running (it may still use a context); then an `atexit`
-hook, which runs once those threads have ended and before finalization, closes whatever is left.
+hook, which runs once those threads have ended and before finalization, closes whatever is left and waits for
+the nodes' executors that were still finishing a callback when their node was destroyed. A daemon thread that
+is inside Zenoh when finalization starts aborts the process the same way.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import atexit
 import logging
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from typing import Protocol, TypeVar
@@ -30,6 +33,10 @@ class Closable(Protocol):
 
 _open: weakref.WeakSet[Closable] = weakref.WeakSet()
 _callback_threads: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
+_finishing: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
+
+#: How long the exit waits, in all, for executors still finishing a callback.
+FINISH_TIMEOUT_S = 30.0
 
 
 def close_at_exit(context: Closable) -> None:
@@ -43,6 +50,11 @@ def declare_with_callback(declare: Callable[[], T]) -> T:
     declared = declare()
     _callback_threads.update(set(threading.enumerate()) - before)
     return declared
+
+
+def join_at_exit(thread: threading.Thread) -> None:
+    """Wait for ``thread`` (told to stop, still finishing its work) before the interpreter finalizes."""
+    _finishing.add(thread)
 
 
 def _program_threads_running() -> bool:
@@ -65,8 +77,17 @@ def _before_joining_threads() -> None:
         close_open_contexts()
 
 
+def _before_finalizing() -> None:
+    close_open_contexts()
+    deadline = time.monotonic() + FINISH_TIMEOUT_S
+    for thread in list(_finishing):
+        thread.join(max(0.0, deadline - time.monotonic()))
+        if thread.is_alive():
+            log.warning("exiting while %s is still running a callback", thread.name)
+
+
 # CPython has had threading's hook since 3.9; it is private, hence the fallback to atexit alone.
 _register_threading_hook = getattr(threading, "_register_atexit", None)
 if _register_threading_hook is not None:
     _register_threading_hook(_before_joining_threads)
-atexit.register(close_open_contexts)
+atexit.register(_before_finalizing)

@@ -39,7 +39,7 @@ from fleetslam.config import ConfigModel, load_config
 from fleetslam.errors import MessageError, MiddlewareError, ServiceError
 from fleetslam.middleware import typesys
 from fleetslam.middleware.context import Context
-from fleetslam.middleware.lifetime import declare_with_callback
+from fleetslam.middleware.lifetime import declare_with_callback, join_at_exit
 from fleetslam.middleware.names import (
     RosArgs,
     agent_of,
@@ -135,6 +135,8 @@ class _Executor:
         self._queue.put(None)
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout_s)
+        if self._thread.is_alive():  # a long callback: the exit must still wait for it (see lifetime)
+            join_at_exit(self._thread)
 
 
 class _Entity:
