@@ -80,13 +80,13 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
                 return max(s.t for s in truth if s.published <= wall)
 
             def turning_right_since(t0: float) -> bool:
-                return any(s.t > t0 and s.w < -0.6 * MAX_W and abs(s.v) < 0.1 for s in reversed(truth[-500:]))
+                return any(s.t > t0 and s.w < -0.6 * MAX_W and abs(s.v) < 0.1 for s in truth[-500:])
 
             def turning_report(t0: float, wall: float) -> str:
                 since = [s for s in truth if s.t > t0]
                 sent = [c for c in commands if c[0] >= wall]
-                slowest = min(since, key=lambda s: s.w, default=None)
-                return f"{len(sent)} commands sent since, fastest right turn {slowest}, last {truth[-1:]}"
+                fastest_right = min(since, key=lambda s: s.w, default=None)
+                return f"{len(sent)} commands sent since, fastest right turn {fastest_right}, last {truth[-1:]}"
 
             def assert_stands_after(event: float, within: float, what: str) -> None:
                 """From ``within`` s after ``event`` (simulated) until the autopilot may take over again, c3po

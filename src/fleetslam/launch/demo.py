@@ -215,6 +215,7 @@ def run_demo(
 ) -> DemoResult:
     """Run the demo until ``duration_s`` passes (None: until Ctrl-C) or ``stop`` is set, then write the results
     to ``out_dir``."""
+    stop = stop or threading.Event()
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
     if mode == "sim":
@@ -237,9 +238,7 @@ def run_demo(
             supervisor_thread.start()
             try:
                 while duration_s is None or time.monotonic() - start < duration_s:
-                    if stop is None:
-                        time.sleep(1.0)
-                    elif stop.wait(1.0):
+                    if stop.wait(1.0):
                         print("[demo] stopping", file=output, flush=True)
                         break
                     elapsed = time.monotonic() - start

@@ -64,7 +64,7 @@ def _program_threads_running() -> bool:
     )
 
 
-def close_open_contexts() -> None:
+def _close_open_contexts() -> None:
     for context in list(_open):
         try:
             context.close()
@@ -74,11 +74,11 @@ def close_open_contexts() -> None:
 
 def _before_joining_threads() -> None:
     if not _program_threads_running():
-        close_open_contexts()
+        _close_open_contexts()
 
 
 def _before_finalizing() -> None:
-    close_open_contexts()
+    _close_open_contexts()
     deadline = time.monotonic() + FINISH_TIMEOUT_S
     for thread in list(_finishing):
         thread.join(max(0.0, deadline - time.monotonic()))
