@@ -17,6 +17,18 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
+@pytest.fixture(autouse=True)
+def _seeded_opencv() -> None:
+    """Every test starts from the same OpenCV RNG state (thread-local; the calling thread's), so a test's result
+    does not depend on which tests ran before it. Our own RANSAC calls are deterministic already (OpenCV's
+    solvePnPRansac seeds its own generator; loop verification seeds before each call)."""
+    try:
+        import cv2
+    except ImportError:
+        return
+    cv2.setRNGSeed(0)
+
+
 @pytest.fixture
 def shared_data() -> Path:
     """`../shared/data` beside the checkout; tests needing it skip when a plain clone lacks it."""

@@ -63,6 +63,8 @@ def test_offline_run_writes_results_and_tracks_the_sweep(tmp_path: Path) -> None
     assert len(estimate) == 24
     # The map frame is the first camera frame: express it in the ground truth's frame (a line cannot be aligned).
     in_world = Trajectory(estimate.stamps, np.einsum("ij,njk->nik", gt.poses[0], estimate.poses))
+    # Hand-held sweep of ±15 cm rendered at 2-3 m: 1.5-2.7 mm RMSE on 3 SIMD paths; 1 cm is the suite's accuracy
+    # floor for an unaligned trajectory.
     assert ape(gt, in_world, align=False).rmse < 0.01
     stats = json.loads((out / "stats.json").read_text())
     assert len(stats["frames"]) == 24

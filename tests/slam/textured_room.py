@@ -34,8 +34,9 @@ def render(
 ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
     """RGB (grey in 3 channels) and depth (metres, camera z) of the room seen from ``T_world_camera``.
 
-    The image is rendered at twice the resolution and averaged down: without anti-aliasing, corners jump
-    by whole texels between views and keypoints carry a pixel of noise that no real camera has."""
+    The image is rendered at twice the resolution and averaged down, and textures are sampled bilinearly (a
+    lens blurs): with nearest-texel sampling, corners jump by whole texels between views and keypoints carry
+    up to a pixel of view-dependent noise that no real camera has."""
     k = intrinsics
     fine = Intrinsics(2 * k.fx, 2 * k.fy, 2 * k.cx + 0.5, 2 * k.cy + 0.5, 2 * k.width, 2 * k.height)
     gray_fine, _ = _raycast(pose, fine, textures)
@@ -70,8 +71,18 @@ def _raycast(
         sel = best_face == face
         axis = face // 2
         a, b = [k for k in range(3) if k != axis]
-        ta = np.clip(((hits[sel, a] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1)).astype(np.intp), 0, TEXELS - 1)
-        tb = np.clip(((hits[sel, b] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1)).astype(np.intp), 0, TEXELS - 1)
-        gray[sel] = textures[face][tb, ta]
+        ta = np.clip((hits[sel, a] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1), 0, TEXELS - 1.001)
+        tb = np.clip((hits[sel, b] + HALF_SIZE) / (2 * HALF_SIZE) * (TEXELS - 1), 0, TEXELS - 1.001)
+        gray[sel] = _bilinear(textures[face], ta, tb)
     depth = (best_t * rays_cam[:, 2]).reshape(h, w).astype(np.float32)
     return gray.reshape(h, w), depth
+
+
+def _bilinear(texture: NDArray[np.uint8], ta: NDArray[np.float64], tb: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """Texture values at continuous texel coordinates (column ``ta``, row ``tb``), bilinearly interpolated."""
+    ia, ib = ta.astype(np.intp), tb.astype(np.intp)
+    fa, fb = ta - ia, tb - ib
+    tex = texture.astype(np.float64)
+    top = tex[ib, ia] * (1 - fa) + tex[ib, ia + 1] * fa
+    bottom = tex[ib + 1, ia] * (1 - fa) + tex[ib + 1, ia + 1] * fa
+    return np.clip(np.rint(top * (1 - fb) + bottom * fb), 0, 255).astype(np.uint8)
