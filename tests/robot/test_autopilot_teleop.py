@@ -163,3 +163,33 @@ def test_joy_teleop_publishes_zero_at_once_on_device_loss_and_inactivity() -> No
     assert joy.tick(2.9, axes, buttons) == pytest.approx((0.4, 0.0))
     assert joy.tick(3.05, axes, buttons) == (0.0, 0.0)  # frozen driver: no event for 2 s
     assert joy.tick(3.1, axes, buttons) is None
+
+
+def test_figure_eight_crosses_itself_and_starts_along_the_robots_heading() -> None:
+    route = get_route("figure_eight")
+    assert route.closed and route.waypoints[0] == (0.0, 0.0)
+    first = route.waypoints[1]
+    assert first[0] > 0.0 and abs(first[1]) < 0.2 * first[0]  # leaves the start heading +x
+    start = (0.0, 0.0, 0.0)
+    pilot = Autopilot.for_route(route, start, max_speed=0.5, lookahead=0.5)
+    path, done = _follow(pilot, start, 200.0)
+    assert done
+    # The path passes the crossing (0, h) on both diagonals: headings there differ by well over 45°.
+    crossing = [(x, y, th) for x, y, th in path if math.hypot(x, y - 2.25) < 0.15]
+    headings = [math.atan2(math.sin(th), math.cos(th)) for _, _, th in crossing]
+    assert max(headings) - min(headings) > math.radians(45)
+
+
+def test_cyclic_autopilot_drives_a_closed_route_lap_after_lap() -> None:
+    start = (1.0, 2.0, 0.0)
+    route = get_route("loop")
+    pilot = Autopilot.for_route(route, start, cyclic=True, max_speed=0.5, lookahead=0.5)
+    path, done = _follow(pilot, start, 150.0)
+    assert not done and pilot.laps >= 2
+    world = route.in_world(start)
+    # Every lap stays on the route (corner cutting bounded by the lookahead) and the waypoint list stays short.
+    assert max(_distance_to_polyline((x, y), world) for x, y, _ in path) < 0.5
+    assert len(pilot.waypoints) <= 3 * len(world)
+    # An open route is driven once even when asked to cycle.
+    once = Autopilot.for_route(get_route("line"), start, cyclic=True)
+    assert not once.cyclic

@@ -61,6 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--rate", type=float, default=1.0, help="simulated seconds per wall second (0: as fast as possible)"
     )
     run_parser.add_argument("--autopilot", default=None, help="drive every robot along this route")
+    run_parser.add_argument(
+        "--laps", action="store_true", help="drive a closed autopilot route lap after lap instead of once"
+    )
     run_parser.add_argument("--duration", type=float, default=None, help="stop after this much simulated time")
     _add_common(run_parser)
     run_parser.set_defaults(func=run_node)
@@ -102,5 +105,6 @@ def run_node(args: argparse.Namespace) -> int:
         height=height,
         rate=args.rate,
         autopilot=args.autopilot,
+        laps=args.laps,
         duration=args.duration,
     )

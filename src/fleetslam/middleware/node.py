@@ -662,6 +662,7 @@ class Node:
         self._timers: list[Timer] = []
         self._subscriptions: list[Subscription] = []
         self._statistics_publisher: Publisher | None = None
+        self._on_destroy: list[Callable[[], None]] = []
         self._destroyed = False
         self._token = context.session.liveliness().declare_token(self._token_info.key())
         context._register(self)
@@ -807,11 +808,21 @@ class Node:
         """Block until the context closes, ``timeout_s`` passes, or Ctrl-C (callbacks run on the executor)."""
         self.context.spin(timeout_s)
 
+    def add_on_destroy(self, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when the node is destroyed, before its entities go (an adapter's worker threads stop
+        there, while they can still publish)."""
+        self._on_destroy.append(callback)
+
     def destroy(self) -> None:
         """Undeclare every entity and the node's token; stop its timers and executor."""
         if self._destroyed:
             return
         self._destroyed = True
+        for callback in self._on_destroy:
+            try:
+                callback()
+            except Exception as err:
+                log.warning("%s: on-destroy callback failed: %s", self.fq_name, err)
         for timer in self._timers:
             timer.cancel()
         for entity in self._entities:

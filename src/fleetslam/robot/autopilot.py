@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from fleetslam.errors import ConfigError
 from fleetslam.geometry import normalize_angle
@@ -52,6 +52,15 @@ def _survey(length: float, width: float, lanes: int) -> tuple[Point, ...]:
     return tuple(points)
 
 
+def _figure_eight(half_height: float, half_width: float, points: int) -> tuple[Point, ...]:
+    """A standing figure eight (x = -w·sin 2t, y = h·(1 + sin t), t from -π/2): it starts at the bottom heading
+    +x, like a robot at its start pose, and crosses itself at (0, h) twice per lap at ±(atan(h/2w)) off the y
+    axis, so the camera sees the crossing from two headings and the lobes' ends from the same one every lap."""
+    ts = [-math.pi / 2 + 2 * math.pi * k / points for k in range(points)]
+    # round(…, 9): the start is exactly (0, 0), not sin's 1e-16 beside it.
+    return tuple((round(-half_width * math.sin(2 * t), 9), round(half_height * (1 + math.sin(t)), 9)) for t in ts)
+
+
 _LOOP = ((0.0, 0.0), (4.0, 0.0), (5.0, 1.0), (5.0, 3.0), (4.0, 4.0), (0.0, 4.0), (-1.0, 3.0), (-1.0, 1.0))
 
 ROUTES: dict[str, Route] = {
@@ -62,6 +71,8 @@ ROUTES: dict[str, Route] = {
     "loop_revisit": Route("loop_revisit", (*_LOOP, (0.0, 0.0), (1.5, 0.0))),
     "survey": Route("survey", _survey(5.0, 3.0, 4)),
     "line": Route("line", ((0.0, 0.0), (3.0, 0.0))),
+    # Crosses and revisits itself (4.5 × 3.4 m, about 14 m a lap): fits beside each demo robot's start.
+    "figure_eight": Route("figure_eight", _figure_eight(2.25, 1.7, 32), closed=True),
 }
 """The route registry: name → route. Extend with :func:`register_route`."""
 
@@ -91,6 +102,8 @@ class Autopilot:
         arrival_tolerance: distance to the last waypoint at which the route is done, m.
         turn_slowdown: speed divides by (1 + turn_slowdown·|curvature|) to slow in turns, m.
         rotate_in_place_angle: if the pursued point is further off the heading than this, turn on the spot.
+        cyclic: the waypoints are a closed lap (first point repeated at the end) driven again and again, never
+            done: a robot that patrols, and revisits every place once per lap.
     """
 
     def __init__(
@@ -103,6 +116,7 @@ class Autopilot:
         arrival_tolerance: float = 0.15,
         turn_slowdown: float = 1.0,
         rotate_in_place_angle: float = math.radians(75.0),
+        cyclic: bool = False,
     ) -> None:
         if not waypoints:
             raise ConfigError("autopilot: the route has no waypoints")
@@ -115,21 +129,40 @@ class Autopilot:
         self.arrival_tolerance = arrival_tolerance
         self.turn_slowdown = turn_slowdown
         self.rotate_in_place_angle = rotate_in_place_angle
+        self.cyclic = cyclic and len(self.waypoints) >= 3
+        self._lap = list(self.waypoints)
+        self.laps = 0
+        """Laps completed (cyclic routes)."""
         self._segment = 0
         self.done = False
 
     @classmethod
-    def for_route(cls, route: Route, start: tuple[float, float, float], **options: float) -> Autopilot:
-        """An autopilot following ``route`` placed at the start pose (x, y, θ)."""
-        return cls(route.in_world(start), **options)
+    def for_route(
+        cls, route: Route, start: tuple[float, float, float], *, cyclic: bool = False, **options: Any
+    ) -> Autopilot:
+        """An autopilot following ``route`` placed at the start pose (x, y, θ); ``cyclic`` drives a closed route
+        lap after lap (an open route is driven once whatever ``cyclic`` says)."""
+        return cls(route.in_world(start), cyclic=cyclic and route.closed, **options)
 
     @property
     def segment(self) -> int:
         """Index of the path segment the robot is on (progress along the route)."""
         return self._segment
 
+    def _next_lap(self) -> None:
+        """Cyclic routes: keep at least one lap ahead of the robot, and forget the lap behind it."""
+        lap = len(self._lap) - 1
+        if self._segment >= lap:
+            del self.waypoints[:lap]
+            self._segment -= lap
+            self.laps += 1
+        while len(self.waypoints) - 1 - self._segment < lap:
+            self.waypoints.extend(self._lap[1:])
+
     def _advance(self, px: float, py: float) -> None:
         """Move progress forward while the robot is past the end of its current segment."""
+        if self.cyclic:
+            self._next_lap()
         while self._segment < len(self.waypoints) - 2:
             ax, ay = self.waypoints[self._segment]
             bx, by = self.waypoints[self._segment + 1]

@@ -39,7 +39,7 @@ class AutopilotNode:
     ) -> None:
         self.node = node
         self.route = route
-        self.pursuit = pursuit
+        self.pursuit: dict[str, Any] = pursuit
         self.publisher = TwistPublisher(node, cmd_topic, stamped=stamped)
         self.pilot: Autopilot | None = None
         self.pose: tuple[float, float, float] | None = None

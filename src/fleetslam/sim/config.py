@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pydantic import Field
 
@@ -78,6 +79,10 @@ class WorldConfig(ConfigModel):
     """Seed of the procedural textures and clutter placement."""
     texture_size: int = Field(default=256, ge=16)
     """Side of the square procedural texture images, pixels."""
+    surfaces: Literal["procedural", "photographic"] = "procedural"
+    """Textures of walls, floor, crates and posters: 'procedural' (generated concrete, bricks, tiles…) or
+    'photographic' (scikit-image's sample photographs of brick, gravel, grass, coins, text and scenes; needs
+    scikit-image): a scene unlike the one the SLAM defaults were developed on."""
 
 
 class SimConfig(ConfigModel):

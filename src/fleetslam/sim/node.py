@@ -133,6 +133,7 @@ class SimNode:
         width, height: camera resolution (default: the plant's configuration).
         rate: simulated seconds per wall second (0 or less: as fast as possible).
         autopilot: name of a route every robot follows from its odometry (None: wait for cmd_vel).
+        laps: drive a closed route lap after lap (a patrol) instead of once.
         truth_hz: rate of ground_truth/odom and /clock, simulated Hz.
     """
 
@@ -146,6 +147,7 @@ class SimNode:
         height: int | None = None,
         rate: float = 1.0,
         autopilot: str | None = None,
+        laps: bool = False,
         truth_hz: float = 50.0,
     ) -> None:
         self.context = context
@@ -177,7 +179,7 @@ class SimNode:
                     "sensor_msgs/msg/CameraInfo", "camera/depth/camera_info", sensor_qos
                 ),
                 truth_pub=node.create_publisher("nav_msgs/msg/Odometry", "ground_truth/odom", QoSProfile(depth=10)),
-                autopilot=Autopilot.for_route(route, (0.0, 0.0, 0.0)) if route is not None else None,
+                autopilot=Autopilot.for_route(route, (0.0, 0.0, 0.0), cyclic=laps) if route is not None else None,
             )
             static_tf = node.create_publisher(
                 "tf2_msgs/msg/TFMessage", "tf_static", QoSProfile(durability="transient_local", depth=1)
@@ -278,6 +280,7 @@ def run_sim_node(
     height: int | None = None,
     rate: float = 1.0,
     autopilot: str | None = None,
+    laps: bool = False,
     duration: float | None = None,
 ) -> int:
     """``fleetslam sim run``: the plant with the named robots (default: all configured) until Ctrl-C."""
@@ -296,7 +299,9 @@ def run_sim_node(
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda *_: stop.set())  # supervisors stop us with SIGTERM
     with Context() as ctx, Plant(config, placements, controllers=False) as plant:
-        sim = SimNode(ctx, plant, camera_hz=camera_hz, width=width, height=height, rate=rate, autopilot=autopilot)
+        sim = SimNode(
+            ctx, plant, camera_hz=camera_hz, width=width, height=height, rate=rate, autopilot=autopilot, laps=laps
+        )
         log.info(
             "simulating %s at %s×%s, camera %.1f Hz, rate %.2f",
             ", ".join(plant.robot_names),

@@ -185,6 +185,38 @@ GENERATORS: dict[str, TextureFn] = {
 """Texture kinds by name."""
 
 
-def make_texture(kind: str, rng: np.random.Generator, size: int) -> Image:
-    """A texture of the named kind."""
+PHOTOGRAPHS: dict[str, tuple[str, ...]] = {
+    "concrete": ("gravel", "moon"),
+    "floor": ("gravel", "grass"),
+    "bricks": ("brick",),
+    "hazard": ("coins",),
+    "metal": ("coins", "camera"),
+    "cardboard": ("page", "text"),
+    "poster": ("astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field"),
+    "photo": ("astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field"),
+}
+"""Texture kind → scikit-image sample photographs standing in for it in a photographic world (real surfaces
+photographed: brick, gravel, grass; real scenes on the posters). ``plain`` stays texture-less."""
+
+
+def photograph(kind: str, rng: np.random.Generator, size: int) -> Image:
+    """A real photograph (scikit-image's bundled samples, no download) for a surface of the given kind, resampled
+    to ``size``² RGB. Raises ImportError without scikit-image."""
+    import cv2
+    from skimage import data
+
+    image = np.asarray(getattr(data, PHOTOGRAPHS[kind][int(rng.integers(len(PHOTOGRAPHS[kind])))])())
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    side = min(image.shape[:2])
+    square = np.ascontiguousarray(image[:side, :side, :3])
+    # Area averaging when shrinking (no aliasing), bilinear when enlarging a small sample.
+    interpolation = cv2.INTER_AREA if side >= size else cv2.INTER_LINEAR
+    return np.asarray(cv2.resize(square, (size, size), interpolation=interpolation), np.uint8)
+
+
+def make_texture(kind: str, rng: np.random.Generator, size: int, *, photographic: bool = False) -> Image:
+    """A texture of the named kind; ``photographic`` replaces the procedural ones by real photographs."""
+    if photographic and kind in PHOTOGRAPHS:
+        return photograph(kind, rng, size)
     return GENERATORS[kind](rng, size)

@@ -44,7 +44,9 @@ class WorldBuilder:
         name = f"{kind}_{variant}_{per_metre}"
         if any(f'name="{name}"' in a for a in self.asset_xml):
             return name
-        image = textures.make_texture(kind, self.rng, self.config.texture_size)
+        image = textures.make_texture(
+            kind, self.rng, self.config.texture_size, photographic=self.config.surfaces == "photographic"
+        )
         self.assets[f"{name}.png"] = encode_png(image)
         self.asset_xml.append(f'<texture name="{name}" type="2d" file="{name}.png"/>')
         if per_metre is None:

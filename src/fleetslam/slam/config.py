@@ -34,6 +34,10 @@ class FeatureConfig(ConfigModel):
     orb_levels: int = Field(default=4, ge=1)
     """ORB pyramid levels (fewer is faster; frame-to-frame motion is small)."""
 
+    orb_patch_size: int = Field(default=31, ge=15)
+    """ORB's descriptor patch (pixels) on a 640-pixel-wide image; scaled down with smaller images, so that it
+    covers the same part of the scene and features come as close to the border."""
+
 
 class OdometryConfig(ConfigModel):
     """Frame-to-local-map visual odometry (RTAB-Map Odom/Strategy=0, F2M)."""
@@ -77,24 +81,26 @@ class OdometryConfig(ConfigModel):
     """Guided matches of binary descriptors (ORB/AKAZE) must lie within this many Hamming bits (0 = no bound;
     float descriptors use the ratio test only). ORB-SLAM uses 100; on the simulated plant that bound gave
     more drift (ATE 10.6 vs 6.2 cm before loop closure), PnP RANSAC already removing the stray matches."""
-    search_radius: float = Field(default=30.0, gt=0.0)
-    """Matches are searched within this many pixels of each map point's predicted projection."""
+    search_radius: float = Field(default=15.0, gt=0.0)
+    """Landmarks are matched within this many pixels of where the motion prediction projects them (pixels of a
+    640-pixel-wide image, scaled with the width); a frame that tracks poorly is searched again at 4× the radius,
+    then across the whole image."""
 
     max_prediction_error: float = Field(default=0.1, gt=0.0)
-    """A PnP pose farther than this from the motion prediction (metres) is a failure, not motion: at 30 Hz
-    a ground robot cannot jump that far between frames."""
+    """A pose farther than this from the motion prediction (metres per 1/30 s of frame interval) is a failure,
+    not motion: a ground robot cannot jump that far between frames."""
 
     max_prediction_error_deg: float = Field(default=5.0, gt=0.0)
-    """A PnP pose rotated more than this from the prediction (degrees) is a failure."""
+    """A pose rotated more than this from the prediction (degrees per 1/30 s of frame interval) is a failure."""
 
-    motion_prior_acceleration: float = Field(default=1.0, ge=0.0)
-    """Standard deviation of the linear acceleration (m/s², per axis) that the pose refinement allows away from
-    the motion prediction (constant velocity or wheel odometry): with Δt between frames the prediction is a
-    prior of σ = ½·a·Δt² next to the reprojection errors, which keeps frames with few or far points (PnP
-    ill-conditioned) where the motion says they are. 1 m/s² suits a ground robot; a hand-held camera needs
-    about 10 (and motion_prior_angular_acceleration about 10). 0 = reprojection errors only (OpenCV's
-    Levenberg–Marquardt)."""
-    motion_prior_angular_acceleration: float = Field(default=0.4, gt=0.0)
+    motion_prior_acceleration: float = Field(default=3.0, ge=0.0)
+    """Standard deviation of the linear acceleration (m/s², per axis) that the pose refinement allows away from a
+    constant-velocity prediction: with Δt between frames the prediction is a prior of σ = ½·a·Δt² beside the
+    reprojection errors, which keeps frames with few or far points (PnP ill-conditioned) where the motion says
+    they are, at any camera rate. With wheel odometry the prediction is the wheels' motion instead, off by
+    ``wheel_drift``. 0 = no prior (reprojection and depth errors only). A prediction the matches clearly
+    contradict (``motion_prior_gate``) is dropped, so a hand-held jerk is not smoothed away."""
+    motion_prior_angular_acceleration: float = Field(default=5.0, gt=0.0)
     """Standard deviation of the angular acceleration (rad/s², per axis) allowed away from the prediction."""
     motion_prior_gate: float = Field(default=1000.0, gt=0.0)
     """The prior is dropped for a frame whose PnP estimate and prediction disagree by more than this squared
@@ -106,6 +112,38 @@ class OdometryConfig(ConfigModel):
     exports from base_camera.txt); without it (TUM folders, hand-held cameras) it does nothing."""
     use_prior: bool = True
     """Use a per-frame prior pose (wheel odometry) as motion prediction and as fallback when lost."""
+    keyframe_min_translation: float = Field(default=0.05, ge=0.0)
+    """A keyframe for weak tracking (inlier ratio, ``keyframe_min_tracked``) needs at least this much
+    translation (metres) or ``keyframe_min_rotation_deg`` from the last one: keyframe spacing then does not
+    shrink with the camera rate."""
+    keyframe_min_rotation_deg: float = Field(default=3.0, ge=0.0)
+    """See ``keyframe_min_translation`` (degrees)."""
+    keyframe_min_tracked: int = Field(default=60, ge=0)
+    """New keyframe when fewer landmarks than this are tracked, whatever the ratio: the map must stay dense
+    enough to track the next frames."""
+    window_keyframes: int = Field(default=6, ge=1)
+    """Keyframes bundle-adjusted together (poses and landmarks) at each new keyframe; 1 disables the adjustment."""
+    window_iterations: int = Field(default=5, ge=1)
+    """Levenberg–Marquardt iterations of the window's adjustment."""
+    pixel_std: float = Field(default=1.0, gt=0.0)
+    """Standard deviation of a keypoint's position on the finest pyramid level (pixels); a level's pixel size
+    multiplies it."""
+    depth_noise: float = Field(default=1.5e-3, ge=0.0)
+    """Depth standard deviation per metre squared, σ(z) = depth_noise·z² + 1 mm (a Kinect v1: 1.43e-3,
+    Khoshelham & Elberink 2012): weighs the depth residuals against the reprojections."""
+    wheel_drift: float = Field(default=0.03, ge=0.0)
+    """Relative standard deviation of the wheel odometry's motion between keyframes (per metre and per radian):
+    weighs the wheels against the camera in the window's adjustment (0: the wheels only predict)."""
+    triangulate: bool = True
+    """Keypoints the depth camera did not measure (beyond its range, on edges) become landmarks when the next
+    keyframe sees them again from a useful angle (epipolar search and triangulation, as ORB-SLAM): far texture
+    holds the heading where measured points are few."""
+    min_parallax_deg: float = Field(default=1.0, gt=0.0)
+    """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
+    coast_distance: float = Field(default=1.5, gt=0.0)
+    """Metres followed on the wheel odometry without matching the map before the map restarts there."""
+    lost_frames: int = Field(default=3, ge=1)
+    """Without wheel odometry, frames that fail to track before the map restarts (the pipeline relocalises)."""
 
 
 class BackendConfig(ConfigModel):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,17 +22,17 @@ def import_cv2() -> Any:
 
 @dataclass
 class Features:
-    """``keypoints (N, 2) float32`` pixel coordinates, ``descriptors (N, D)``, detector ``responses (N,)``."""
+    """``keypoints (N, 2) float32`` pixel coordinates, ``descriptors (N, D)``, detector ``responses (N,)`` and
+    ``scales (N,)``: the pixel size of the pyramid level each keypoint was found on, in full-resolution pixels
+    (1 on the finest level), which is also the standard deviation of its position in units of the finest pixel."""
 
     keypoints: NDArray[np.float32]
     descriptors: NDArray[Any]
     responses: NDArray[np.float32]
+    scales: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
 
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
-
-    def subset(self, index: NDArray[Any]) -> Features:
-        return Features(self.keypoints[index], self.descriptors[index], self.responses[index])
 
 
 def bucket(
@@ -75,16 +75,23 @@ class FeatureExtractor:
         grid_cols: int = 4,
         orb_fast_threshold: int = 12,
         orb_levels: int = 4,
+        orb_patch_size: int = 31,
     ) -> None:
         cv2 = import_cv2()
         self.kind = kind
         self.max_features = max_features
+        self.scale_factor = 1.2  # OpenCV's ORB default pyramid step
         self.grid = (grid_rows, grid_cols)
         # Detect more than kept so that bucketing can choose per cell.
         n_detect = 2 * max_features
         if kind == "orb":
             self._detector = cv2.ORB_create(
-                nfeatures=n_detect, nlevels=orb_levels, fastThreshold=orb_fast_threshold, scoreType=cv2.ORB_FAST_SCORE
+                nfeatures=n_detect,
+                nlevels=orb_levels,
+                fastThreshold=orb_fast_threshold,
+                scoreType=cv2.ORB_FAST_SCORE,
+                patchSize=orb_patch_size,
+                edgeThreshold=orb_patch_size,
             )
         elif kind == "sift":
             self._detector = cv2.SIFT_create(nfeatures=n_detect)
@@ -109,7 +116,15 @@ class FeatureExtractor:
         keypoints, descriptors = self._detector.compute(gray, keypoints)
         if descriptors is None or not keypoints:
             dim, dtype = (32, np.uint8) if self.binary else (128, np.float32)
-            return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), np.zeros(0, np.float32))
+            empty = np.zeros(0, np.float32)
+            return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), empty, empty)
         pts = np.array([k.pt for k in keypoints], dtype=np.float32).reshape(-1, 2)
         resp = np.array([k.response for k in keypoints], dtype=np.float32)
-        return Features(pts, descriptors, resp)
+        if self.kind == "orb":
+            scales = (self.scale_factor ** np.array([k.octave & 0xFF for k in keypoints])).astype(np.float32)
+            # ORB reports a level's pixel x_L as x_L·s; its centre is at (x_L + ½)·s − ½ in the full image.
+            pts += ((scales - 1.0) / 2.0)[:, None]
+        else:  # SIFT/AKAZE: the keypoint's size relative to the smallest detected stands in for the level
+            sizes = np.array([k.size for k in keypoints], dtype=np.float32)
+            scales = np.maximum(sizes / max(float(sizes.min()), 1e-6), 1.0).astype(np.float32)
+        return Features(pts, descriptors, resp, scales)

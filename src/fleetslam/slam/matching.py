@@ -25,12 +25,21 @@ def pair_distances(a: NDArray[Any], b: NDArray[Any], ia: NDArray[np.intp], ib: N
     return np.sqrt(np.einsum("ij,ij->i", diff, diff)).astype(np.float64)
 
 
+def _order_by(group: NDArray[np.intp], distance: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Indices sorting by group, then by distance. Hamming distances (small integers) pack with the group into one
+    integer key: one argsort instead of lexsort's two passes (the matcher's hot spot)."""
+    if len(distance) and np.all(distance == np.rint(distance)) and distance.max() < 2**20 and distance.min() >= 0:
+        key = group.astype(np.int64) << 20 | distance.astype(np.int64)
+        return np.argsort(key, kind="stable")
+    return np.lexsort((distance, group))
+
+
 def _best_per_query(
     query: NDArray[np.intp], train: NDArray[np.intp], distance: NDArray[np.float64], ratio: float
 ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
     """Per query index, its nearest train index if it passes the ratio test against the second nearest (a
     query with one candidate passes)."""
-    order = np.lexsort((distance, query))
+    order = _order_by(query, distance)
     query, train, distance = query[order], train[order], distance[order]
     first = np.ones(len(query), bool)
     first[1:] = query[1:] != query[:-1]
@@ -75,7 +84,12 @@ def match_by_projection(
         close = distance <= max_distance
         query, train, distance = query[close], train[close], distance[close]
     query, train, distance = _best_per_query(query, train, distance, ratio)
-    return query, train
+    # A map point is one physical point: when several keypoints chose it, only the closest descriptor keeps it.
+    order = _order_by(train, distance)
+    first = np.ones(len(order), bool)
+    first[1:] = train[order][1:] != train[order][:-1]
+    keep = np.sort(order[first])
+    return query[keep], train[keep]
 
 
 def match_ratio(

@@ -1,7 +1,9 @@
 """The SLAM node of one agent: camera topics in, pose, keyframes and the keyframe graph out.
 
 Subscribes ``camera/rgb/image_raw`` (rgb8/bgr8), ``camera/depth/image_raw`` (32FC1 m or 16UC1 mm) and
-``camera/rgb/camera_info``; frames are paired by stamp and fed to :class:`~fleetslam.slam.pipeline.SlamPipeline`.
+``camera/rgb/camera_info``; frames are paired by stamp and fed to :class:`~fleetslam.slam.pipeline.SlamPipeline` by
+a worker thread that always takes the newest complete pair: a node that cannot keep up with the camera drops the
+stale pairs (counted) instead of falling behind, and the wheel odometry bridges the gap.
 With wheel odometry (``odom``, nav_msgs/Odometry of ``base_link`` in ``odom``, and ``tf_static`` giving
 ``base_link`` → camera), each frame gets the wheel pose at its stamp as prior: the visual odometry predicts
 with it and follows it when tracking is lost (a blank wall), so the map does not break.
@@ -10,13 +12,18 @@ that puts the wheel odometry, or without it the visual odometry, on the optimise
 (nav_msgs/Path of keyframes), ``liveframes`` (Keyframe without images, every frame), ``keyframes`` (Keyframe
 with JPEG colour, PNG depth in mm, keypoints, 3D points, descriptors and the bag-of-words vector: visual word
 ids with TF-IDF weights) and ``graph`` (KeyframeGraph: every keyframe pose and constraint; after a loop
-closure all poses are re-sent, never points). Services: ``slam/save_map`` (SaveMap: map.db), ``slam/reset``
+closure all poses are re-sent, never points). After every processed frame, ``slam/diagnostics``
+(diagnostic_msgs/DiagnosticArray, one status named ``slam``): frames received, processed and dropped,
+relocalisations, loop closures, lost and coasting frames, keyframes, and the frame's timings (odometry, steps,
+latency from the pair's arrival to its pose). Services: ``slam/save_map`` (SaveMap: map.db), ``slam/reset``
 (Trigger), ``slam/pause`` (SetBool).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
+import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -32,6 +39,7 @@ from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.conversions import pose_matrix, transform_matrix, transform_msg
 from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp, stamp_from_ns
 from fleetslam.slam.config import SlamConfig
+from fleetslam.slam.frame_queue import FramePair, FrameQueue
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
 from fleetslam.slam.pose_buffer import PoseBuffer
 
@@ -50,7 +58,10 @@ class SlamNodeConfig(ConfigModel):
     jpeg_quality: int = Field(default=85, ge=10, le=100)
     """Quality of keyframe colour images."""
     max_pending: int = Field(default=4, ge=1)
-    """Unpaired colour images kept while waiting for their depth."""
+    """Unpaired colour (and depth) images kept while waiting for their partner."""
+    odom_wait: float = Field(default=0.1, ge=0.0)
+    """How long (s) a frame may wait for the wheel odometry to reach its stamp before it is processed without
+    the newest wheel pose (odometry and images travel separately)."""
     map_db: str = "map.db"
     """Default file of the save_map service."""
     use_wheel_odometry: bool = True
@@ -67,20 +78,29 @@ class SlamNodeConfig(ConfigModel):
 
 
 def image_to_array(msg: Any) -> np.ndarray:
-    """RGB uint8 (H, W, 3) or depth float32 metres (H, W) of a sensor_msgs/Image."""
+    """RGB uint8 (H, W, 3) or depth float32 metres (H, W) of a sensor_msgs/Image, honouring its row ``step`` and
+    ``is_bigendian``; raises ValueError naming the encoding or size at fault."""
     h, w, enc = int(msg.height), int(msg.width), msg.encoding
+    channels, dtype = {"rgb8": (3, "u1"), "bgr8": (3, "u1"), "32FC1": (1, "f4"), "16UC1": (1, "u2")}.get(enc, (0, ""))
+    if not channels:
+        raise ValueError(f"unsupported image encoding {enc!r}")
+    item = np.dtype(dtype).itemsize
+    step = int(msg.step) or w * channels * item
     raw = np.frombuffer(bytes(msg.data), np.uint8)
+    if h <= 0 or w <= 0 or step < w * channels * item or len(raw) < step * (h - 1) + w * channels * item:
+        raise ValueError(f"{enc} image {w}x{h} with step {step} does not fit its {len(raw)} data bytes")
+    rows = np.lib.stride_tricks.as_strided(raw, (h, w * channels * item), (step, 1))
+    order = ">" if msg.is_bigendian else "<"
+    pixels = np.ascontiguousarray(rows).view(order + dtype).reshape(h, w, channels) if item > 1 else rows
     if enc == "rgb8":
-        return raw[: h * w * 3].reshape(h, w, 3)
+        return np.ascontiguousarray(pixels.reshape(h, w, 3))
     if enc == "bgr8":
-        return raw[: h * w * 3].reshape(h, w, 3)[:, :, ::-1]
+        return np.ascontiguousarray(pixels.reshape(h, w, 3)[:, :, ::-1])
     if enc == "32FC1":
-        depth = raw[: h * w * 4].view("<f4").reshape(h, w).copy()
+        depth = pixels.reshape(h, w).astype(np.float32)
         depth[~np.isfinite(depth)] = 0.0
         return depth
-    if enc == "16UC1":
-        return raw[: h * w * 2].view("<u2").reshape(h, w).astype(np.float32) / 1000.0
-    raise ValueError(f"unsupported image encoding {enc!r}")
+    return pixels.reshape(h, w).astype(np.float32) / 1000.0
 
 
 def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
@@ -110,8 +130,14 @@ class SlamNode:
         self.camera_info: Any = None
         self.paused = False
         self.frames = 0
-        self._pending: dict[int, Any] = {}
-        self._depth: dict[int, Any] = {}
+        """Frames processed."""
+        self.queue = FrameQueue(self.config.max_pending)
+        self.counts = {"relocalisations": 0, "loop_closures": 0, "lost_frames": 0, "coasting_frames": 0,
+                       "keyframes": 0, "failed_frames": 0}  # fmt: skip
+        self._odometry_ms: list[float] = []
+        self._latency_ms: list[float] = []
+        self._lock = threading.Lock()
+        """Held while the pipeline is used (the worker's frames, the services)."""
         self.agent = node.namespace.strip("/")
         self.wheel_poses = PoseBuffer(horizon=5.0, tolerance=self.config.odom_tolerance)
         self.base_camera: np.ndarray | None = None
@@ -127,6 +153,9 @@ class SlamNode:
         self.keyframe_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
         self.graph_pub = node.create_publisher(
             "fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(durability="transient_local", depth=1)
+        )
+        self.diagnostics_pub = node.create_publisher(
+            "diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5)
         )
         images = QoSProfile(depth=2)
         node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images)
@@ -151,9 +180,24 @@ class SlamNode:
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
+        self._stop = threading.Event()
+        self._worker = threading.Thread(target=self._work, name=f"{node.fq_name}/slam", daemon=True)
+        self._worker.start()
+        node.add_on_destroy(self.close)
+
+    def close(self) -> None:
+        """Stop the worker (it finishes the frame it is on)."""
+        self._stop.set()
+        self.queue.close()
+        if self._worker is not threading.current_thread():
+            self._worker.join(10.0)
 
     # -- inputs -------------------------------------------------------------------------------------------------
     def on_camera_info(self, msg: Any) -> None:
+        with self._lock:
+            self._start_pipeline(msg)
+
+    def _start_pipeline(self, msg: Any) -> None:
         if self.pipeline is None:
             k = msg.k
             intrinsics = Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height))
@@ -179,8 +223,9 @@ class SlamNode:
                 extrinsic = _valid_pose(partial(transform_matrix, transform.transform))
                 if extrinsic is not None:
                     self.base_camera = extrinsic
-                    if self.pipeline is not None:
-                        self.pipeline.set_mounting(extrinsic)
+                    with self._lock:
+                        if self.pipeline is not None:
+                            self.pipeline.set_mounting(extrinsic)
                 else:
                     self.bad_inputs += 1
                     log.warning("%s: tf_static %s -> %s is not a valid transform; ignored", self.agent, parent, child)
@@ -193,26 +238,10 @@ class SlamNode:
         return None if base is None else base @ self.base_camera
 
     def on_rgb(self, msg: Any) -> None:
-        self._pair(ns_from_stamp(msg.header.stamp), rgb=msg)
+        self.queue.put_rgb(ns_from_stamp(msg.header.stamp), msg)
 
     def on_depth(self, msg: Any) -> None:
-        self._pair(ns_from_stamp(msg.header.stamp), depth=msg)
-
-    def _pair(self, stamp: int, rgb: Any = None, depth: Any = None) -> None:
-        if rgb is not None:
-            self._pending[stamp] = rgb
-        if depth is not None:
-            self._depth[stamp] = depth
-        if stamp in self._pending and stamp in self._depth:
-            rgb_msg, depth_msg = self._pending.pop(stamp), self._depth.pop(stamp)
-            for old in [s for s in self._pending if s < stamp]:
-                del self._pending[old]
-            for old in [s for s in self._depth if s < stamp]:
-                del self._depth[old]
-            self.process(stamp, rgb_msg, depth_msg)
-        for queue in (self._pending, self._depth):
-            while len(queue) > self.config.max_pending:
-                del queue[min(queue)]
+        self.queue.put_depth(ns_from_stamp(msg.header.stamp), msg)
 
     def on_peer_graph(self, msg: Any) -> None:
         self.peer_graphs[msg.agent] = msg
@@ -221,20 +250,95 @@ class SlamNode:
         self.peer_keyframes[msg.agent] = self.peer_keyframes.get(msg.agent, 0) + 1
 
     # -- work ---------------------------------------------------------------------------------------------------
-    def process(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> StepResult | None:
+    def _work(self) -> None:
+        """The worker: the newest pair, processed; a frame that fails is counted and logged, never fatal."""
+        while not self._stop.is_set():
+            pair = self.queue.take(timeout_s=0.5)
+            if pair is None:
+                continue
+            self._wait_for_wheels(pair.stamp_ns / 1e9)
+            try:
+                with self._lock:
+                    self.process(pair)
+            except Exception as err:  # one bad frame (malformed image, numeric failure) must not stop SLAM
+                self.counts["failed_frames"] += 1
+                if self.counts["failed_frames"] in (1, 10, 100) or self.counts["failed_frames"] % 1000 == 0:
+                    log.warning("%s: frame at %d ns failed (%d so far): %s", self.agent, pair.stamp_ns,
+                                self.counts["failed_frames"], err)  # fmt: skip
+
+    def _wait_for_wheels(self, stamp: float) -> None:
+        """Give the wheel odometry up to ``odom_wait`` to reach the frame's stamp (it may travel behind it)."""
+        if not self.config.use_wheel_odometry or self.base_camera is None:
+            return
+        deadline = time.monotonic() + self.config.odom_wait
+        while time.monotonic() < deadline and not self._stop.is_set():
+            newest = self.wheel_poses.newest_stamp
+            if newest is None or newest >= stamp:
+                return
+            time.sleep(0.005)
+
+    def process(self, pair: FramePair) -> StepResult | None:
+        """Track one frame and publish what it produced (the caller holds the pipeline lock)."""
         if self.pipeline is None or self.paused:
             return None
+        stamp_ns = pair.stamp_ns
         prior = self.wheel_prior(stamp_ns / 1e9)
+        rgb, depth = image_to_array(pair.rgb), image_to_array(pair.depth)
+        if rgb.ndim != 3 or depth.shape != rgb.shape[:2]:
+            raise ValueError(f"colour {rgb.shape[:2]} and depth {depth.shape} images differ in size")
         self.priors_used += prior is not None
-        frame = RGBDFrame(self.frames, stamp_ns / 1e9, image_to_array(rgb_msg), image_to_array(depth_msg), prior=prior)
+        frame = RGBDFrame(self.frames, stamp_ns / 1e9, rgb, depth, prior=prior)
         self.frames += 1
+        t0 = time.perf_counter()
         step = self.pipeline.step(frame)
+        step_ms = (time.perf_counter() - t0) * 1e3
         self.publish_pose(stamp_ns, step)
         self.publish_map_to_odom(stamp_ns, step, prior)
         if step.keyframe_id is not None:
             self.publish_keyframe(stamp_ns, step, frame)
             self.publish_graph(stamp_ns, optimized=step.loop_closed)
+        self._count(step)
+        self.publish_diagnostics(stamp_ns, step, step_ms, (time.monotonic() - pair.completed) * 1e3)
         return step
+
+    def _count(self, step: StepResult) -> None:
+        odometry = step.odometry
+        self.counts["keyframes"] += step.keyframe_id is not None
+        self.counts["loop_closures"] += step.loop_closed
+        self.counts["relocalisations"] += step.relocalized
+        self.counts["lost_frames"] += bool(odometry.lost)
+        self.counts["coasting_frames"] += bool(odometry.coasting)
+
+    def publish_diagnostics(self, stamp_ns: int, step: StepResult, step_ms: float, latency_ms: float) -> None:
+        """``slam/diagnostics``: counts since start and this frame's timings (see the module docstring)."""
+        timings = dict(step.odometry.timings)
+        self._odometry_ms.append(float(timings.get("total", 0.0)))
+        self._latency_ms.append(latency_ms)
+        del self._odometry_ms[:-1000], self._latency_ms[:-1000]  # the means are over the last 1000 frames
+        values = {
+            "frames_received": self.queue.received,
+            "frames_processed": self.frames,
+            "frames_dropped": self.queue.dropped,
+            **self.counts,
+            "odometry_ms": round(float(timings.get("total", 0.0)), 2),
+            "odometry_ms_mean": round(float(np.mean(self._odometry_ms)), 2),
+            "step_ms": round(step_ms, 2),
+            "latency_ms": round(latency_ms, 2),
+            "latency_ms_mean": round(float(np.mean(self._latency_ms)), 2),
+            **{f"{name}_ms": round(float(ms), 2) for name, ms in timings.items() if name != "total"},
+        }
+        odometry = step.odometry
+        status_type = get_type("diagnostic_msgs/msg/DiagnosticStatus")
+        level = status_type.WARN if odometry.lost or odometry.coasting else status_type.OK
+        state = "lost" if odometry.lost else "coasting on wheel odometry" if level else "tracking"
+        status = status_type(
+            level=level, name="slam", hardware_id=self.agent,
+            message=f"{state}; {self.frames} frames processed, {self.queue.dropped} dropped",
+            values=[get_type("diagnostic_msgs/msg/KeyValue")(key=k, value=str(v)) for k, v in values.items()],
+        )  # fmt: skip
+        array = get_type("diagnostic_msgs/msg/DiagnosticArray")(header=header(self.config.map_frame, stamp_ns),
+                                                                status=[status])  # fmt: skip
+        self.diagnostics_pub.publish(array)
 
     def publish_pose(self, stamp_ns: int, step: StepResult) -> None:
         odom = message_from_dict(
@@ -320,6 +424,10 @@ class SlamNode:
 
     # -- services -----------------------------------------------------------------------------------------------
     def on_save_map(self, request: Any) -> Any:
+        with self._lock:
+            return self._save_map(request)
+
+    def _save_map(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
         path = Path(request.path or self.config.map_db)
         if self.pipeline is None or self.pipeline.detector is None:
@@ -334,10 +442,11 @@ class SlamNode:
         return response(success=True, message=f"{len(self.pipeline.keyframe_stamps)} keyframes", path=str(path))
 
     def on_reset(self, request: Any) -> Any:
-        self.pipeline = None
-        self.frames = 0
-        if self.camera_info is not None:
-            self.on_camera_info(self.camera_info)
+        with self._lock:
+            self.pipeline = None
+            self.frames = 0
+            if self.camera_info is not None:
+                self._start_pipeline(self.camera_info)
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="SLAM reset")
 
     def on_pause(self, request: Any) -> Any:

@@ -1,18 +1,27 @@
-"""Frame-to-local-map RGB-D visual odometry (RTAB-Map's F2M strategy), pure: arrays in, pose out.
+"""Frame-to-local-map RGB-D visual odometry with a windowed bundle adjustment (pure: arrays in, pose out).
 
-Each frame: features are detected and matched by descriptor to the local map (3D points in the odometry
-frame from recent keyframes); the pose is estimated by PnP RANSAC seeded with a motion prediction (constant
-velocity, or the change of the wheel-odometry prior) and refined by Levenberg–Marquardt on the inliers.
-A frame becomes a keyframe when the inlier count drops below a ratio of the last keyframe's features or it
-moved far enough; its features with valid depth then join the local map (the oldest points leave first).
-When tracking is lost, the pose follows the prior (or constant velocity) and the local map restarts from
-the current frame, so a texture-less wall does not break the trajectory.
+Each frame: ORB features are matched to the local map (landmarks with descriptors, in the odometry frame) near
+where a motion prediction projects them (the wheel odometry's motion when there is one, else constant velocity);
+the pose is found by robust motion-only optimisation of reprojection and depth residuals together with the
+prediction as a prior whose width follows the frame interval (RANSAC PnP only when the guided matches fail). A
+frame becomes a keyframe when it tracks too few of the map's landmarks, or moved or turned far enough from the last
+keyframe (distances, not frame counts: the decision does not depend on the camera rate). A keyframe adds its new
+landmarks, joins a window of recent keyframes, and the window is bundle-adjusted (poses and landmarks, RGB-D
+residuals; a ground robot's poses on its floor plane, tied by the wheels' relative motion), so that one frame's
+error does not become the next keyframe's map.
+
+When the features fail (a blank wall, motion blur, a dropped stretch of frames) with wheel odometry available, the
+pose follows the wheels and the map is kept (``coasting``), so tracking resumes on the same map; only after
+``coast_distance`` without a match does the map restart at the wheel pose. Without wheel odometry the frame is
+``lost``: the pose follows constant velocity, and the map restarts after ``lost_frames`` such frames (the
+pipeline then tries to relocalise on its keyframes).
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,11 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics
-from fleetslam.geometry import invert, planar_camera_pose, rotation_angle
+from fleetslam.geometry import invert, orthonormalized, planar_camera_pose, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
+from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
-from fleetslam.slam.pose_refinement import planar_basis, refine_pose_with_prior
+from fleetslam.slam.pose_refinement import planar_basis, refine_pose, refine_pose_with_prior
+from fleetslam.slam.triangulation import match_and_triangulate
 
 logger = logging.getLogger(__name__)
 
@@ -36,18 +47,23 @@ class OdometryResult:
     pose: NDArray[np.float64]
     """``T_world_camera`` in the odometry frame."""
     inliers: int
-    """PnP inliers (0 when lost)."""
+    """Landmarks the pose was estimated from (0 when lost or coasting)."""
     matches: int
     """Descriptor matches against the local map."""
     is_keyframe: bool
     lost: bool
+    """Visual tracking failed and no wheel odometry carried the pose (it follows constant velocity)."""
     timings: dict[str, float] = field(default_factory=dict)
-    """Milliseconds per step (features, match, pnp, update, total)."""
+    """Milliseconds per step (features, match, pose, keyframe, total)."""
     keypoints: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     """Keypoints with valid depth (for the loop-closure side on keyframes)."""
     points3d: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     """Their 3D points in the camera frame."""
     descriptors: NDArray[Any] = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
+    coasting: bool = False
+    """Visual tracking failed and the pose follows the wheel odometry; the map is kept."""
+    map_restarted: bool = False
+    """The local map was started afresh at this frame (first frame, or after losing it)."""
 
 
 def backproject(
@@ -57,15 +73,29 @@ def backproject(
     min_depth: float,
     max_depth: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """3D points (camera frame) of keypoints from the nearest depth pixel, and which are valid."""
+    """3D points (camera frame) of keypoints from the depth image, and which are valid.
+
+    The depth is interpolated bilinearly between the four pixels around the keypoint when they lie on one surface
+    (within 3 % of each other), else taken from the nearest pixel: a keypoint sits between pixels, and on a wall
+    seen at an angle the nearest pixel's depth is off by up to half a pixel's depth gradient."""
     h, w = depth.shape
-    u = np.clip(np.rint(keypoints[:, 0]).astype(np.intp), 0, w - 1)
-    v = np.clip(np.rint(keypoints[:, 1]).astype(np.intp), 0, h - 1)
-    z = depth[v, u].astype(np.float64)
+    x = np.clip(keypoints[:, 0].astype(np.float64), 0.0, w - 1.0)
+    y = np.clip(keypoints[:, 1].astype(np.float64), 0.0, h - 1.0)
+    u0 = np.minimum(np.floor(x).astype(np.intp), w - 2) if w > 1 else np.zeros(len(x), np.intp)
+    v0 = np.minimum(np.floor(y).astype(np.intp), h - 2) if h > 1 else np.zeros(len(y), np.intp)
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    fu, fv = x - u0, y - v0
+    corners = np.stack([depth[v0, u0], depth[v0, u1], depth[v1, u0], depth[v1, u1]], axis=1).astype(np.float64)
+    corners = np.nan_to_num(corners, nan=0.0, posinf=0.0, neginf=0.0)
+    weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    smooth = (lo > 0) & (hi - lo <= 0.03 * lo)
+    nearest = depth[np.rint(y).astype(np.intp), np.rint(x).astype(np.intp)].astype(np.float64)
+    z = np.where(smooth, np.sum(corners * weights, axis=1), np.nan_to_num(nearest, nan=0.0))
     valid = np.isfinite(z) & (z > min_depth) & (z < max_depth)
-    x = (keypoints[:, 0] - intrinsics.cx) * z / intrinsics.fx
-    y = (keypoints[:, 1] - intrinsics.cy) * z / intrinsics.fy
-    return np.stack([x, y, z], axis=1), valid
+    px = (keypoints[:, 0] - intrinsics.cx) * z / intrinsics.fx
+    py = (keypoints[:, 1] - intrinsics.cy) * z / intrinsics.fy
+    return np.stack([px, py, z], axis=1), valid
 
 
 def _to_rvec_tvec(T_camera_world: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -83,12 +113,16 @@ def _from_rvec_tvec(rvec: NDArray[np.float64], tvec: NDArray[np.float64]) -> NDA
 
 
 class LocalMap:
-    """3D points (odometry frame) with descriptors, oldest first, capped in size."""
+    """Landmarks in the odometry frame: positions, descriptors, stable ids (increasing) and the frame each was last
+    tracked in; capped in size, the longest unseen leave first."""
 
     def __init__(self, max_size: int) -> None:
         self.max_size = max_size
         self.points = np.zeros((0, 3))
         self.descriptors: NDArray[Any] | None = None
+        self.ids = np.zeros(0, np.int64)
+        self.last_seen = np.zeros(0, np.int64)
+        self._next_id = 0
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -96,19 +130,54 @@ class LocalMap:
     def clear(self) -> None:
         self.points = np.zeros((0, 3))
         self.descriptors = None
+        self.ids = np.zeros(0, np.int64)
+        self.last_seen = np.zeros(0, np.int64)
 
-    def add(self, points: NDArray[np.float64], descriptors: NDArray[Any]) -> None:
+    def add(self, points: NDArray[np.float64], descriptors: NDArray[Any], frame: int = 0) -> NDArray[np.int64]:
+        """Append landmarks; returns their ids."""
+        ids = np.arange(self._next_id, self._next_id + len(points), dtype=np.int64)
         if len(points) == 0:
-            return
-        if self.descriptors is None:
-            self.points, self.descriptors = points.copy(), descriptors.copy()
+            return ids
+        self._next_id += len(points)
+        if self.descriptors is None or len(self) == 0:
+            self.points, self.descriptors = np.array(points, np.float64), descriptors.copy()
+            self.ids, self.last_seen = ids, np.full(len(points), frame, np.int64)
         else:
             self.points = np.vstack([self.points, points])
             self.descriptors = np.vstack([self.descriptors, descriptors])
+            self.ids = np.concatenate([self.ids, ids])
+            self.last_seen = np.concatenate([self.last_seen, np.full(len(points), frame, np.int64)])
         excess = len(self.points) - self.max_size
         if excess > 0:
-            self.points = self.points[excess:]
-            self.descriptors = self.descriptors[excess:]
+            keep = np.sort(np.argsort(self.last_seen, kind="stable")[excess:])
+            self._keep(keep)
+        return ids
+
+    def _keep(self, rows: NDArray[np.intp]) -> None:
+        assert self.descriptors is not None
+        self.points, self.descriptors = self.points[rows], self.descriptors[rows]
+        self.ids, self.last_seen = self.ids[rows], self.last_seen[rows]
+
+    def rows(self, ids: NDArray[np.int64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+        """Rows of the given landmark ids, and which of them are still in the map."""
+        position = np.searchsorted(self.ids, ids)
+        found = position < len(self.ids)
+        found[found] = self.ids[position[found]] == ids[found]
+        return np.where(found, position, 0).astype(np.intp), found
+
+
+@dataclass
+class _WindowKeyframe:
+    """A keyframe of the bundle-adjustment window and what it observed."""
+
+    pose: NDArray[np.float64]
+    """``T_world_camera`` (odometry frame)."""
+    landmarks: NDArray[np.int64]
+    pixels: NDArray[np.float64]
+    depths: NDArray[np.float64]
+    scales: NDArray[np.float64]
+    prior: NDArray[np.float64] | None
+    """The wheel odometry's camera pose at this keyframe (``T_odom_camera``), when known."""
 
 
 class VisualOdometry:
@@ -125,27 +194,67 @@ class VisualOdometry:
         self.config = config
         self.intrinsics = intrinsics
         fc = features if features is not None else FeatureConfig.model_validate({})
+        #: Pixel distances in the configuration are for a 640-pixel-wide image; a smaller image moves less.
+        self._pixel_scale = intrinsics.width / 640.0
+        # ORB's patch covers the same part of the scene at any resolution (31 px at 640 wide): on a small image a
+        # full-size patch would only blur the descriptor and keep features a patch away from the border.
+        patch = max(15, round(fc.orb_patch_size * min(self._pixel_scale, 1.0)))
         self.extractor = FeatureExtractor(
-            fc.kind, fc.max_features, fc.grid_rows, fc.grid_cols, fc.orb_fast_threshold, fc.orb_levels
+            fc.kind, fc.max_features, fc.grid_rows, fc.grid_cols, fc.orb_fast_threshold, fc.orb_levels, patch
         )
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
+        self.window: deque[_WindowKeyframe] = deque(maxlen=config.window_keyframes)
         self.pose = np.eye(4)
         self._velocity = np.eye(4)
         """Motion of the last frame, ``T_previous_current``."""
         self._previous_prior: NDArray[np.float64] | None = None
         self._keyframe_pose: NDArray[np.float64] | None = None
-        self._keyframe_features = 0
+        self._keyframe_tracked = 0
         self.frames = 0
         self.base_camera = base_camera
         self._last_stamp: float | None = None
         self._frame_interval = 1.0 / 30.0
+        self._coasted = 0.0
+        """Distance (m) followed on the wheels since the map last tracked."""
+        self._candidates: _Candidates | None = None
+        self._lost_frames = 0
 
-    def _predict(self, prior: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    # -- prediction ---------------------------------------------------------------------------------------------
+    def _predict(self, prior: NDArray[np.float64] | None) -> _Prediction:
+        """Where the frame should be: the wheels' motion since the last frame when known (off by their slip:
+        ``wheel_drift`` of the motion, plus a few millimetres of timing), else constant velocity (off by what the
+        configured accelerations can change within the frame interval: ½·a·Δt²)."""
         if prior is not None and self._previous_prior is not None and self.config.use_prior:
-            return self.pose @ invert(self._previous_prior) @ prior
-        return self.pose @ self._velocity
+            motion = invert(self._previous_prior) @ prior
+            std = (
+                self.config.wheel_drift * float(np.linalg.norm(motion[:3, 3])) + 3e-3,
+                self.config.wheel_drift * rotation_angle(motion) + np.radians(0.2),
+            )
+            return _Prediction(self.constrain(self.pose @ motion), std, True)
+        # The velocity itself comes from two noisy poses: its error (a few millimetres and tenths of a degree per
+        # frame, whatever the rate) adds to what the acceleration can change. Without that floor, a tight prior at
+        # a high rate passes a velocity error on from frame to frame and the pose runs away with it.
+        half_dt2 = 0.5 * self._frame_interval**2
+        std = (
+            float(np.hypot(self.config.motion_prior_acceleration * half_dt2, 0.005)),
+            float(np.hypot(self.config.motion_prior_angular_acceleration * half_dt2, np.radians(0.3))),
+        )
+        return _Prediction(self.constrain(self.pose @ self._velocity), std, False)
 
+    def constrain(self, pose: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The pose projected onto the robot's plane of motion when ``planar_motion`` is on (and the mounting
+        known); otherwise unchanged."""
+        if not self.planar:
+            return pose
+        assert self.base_camera is not None
+        return planar_camera_pose(pose, self.base_camera)
+
+    @property
+    def planar(self) -> bool:
+        return bool(self.config.planar_motion and self.base_camera is not None)
+
+    # -- the frame ----------------------------------------------------------------------------------------------
     def track(
         self, rgb: NDArray[np.uint8], depth: NDArray[np.float32], stamp: float, prior: NDArray[np.float64] | None = None
     ) -> OdometryResult:
@@ -154,7 +263,7 @@ class VisualOdometry:
         Args:
             rgb: ``(H, W, 3)`` uint8 colour image (or ``(H, W)`` grayscale).
             depth: ``(H, W)`` float32 metres registered to ``rgb`` (0 = invalid).
-            stamp: capture time in seconds (logged only; prediction is per frame).
+            stamp: capture time in seconds (sets the motion prior's width).
             prior: optional pose of this frame from wheel odometry (any fixed frame).
         """
         cv2 = import_cv2()
@@ -170,130 +279,160 @@ class VisualOdometry:
         )
         t1 = time.perf_counter()
         timings["features"] = (t1 - t0) * 1e3
-        predicted = self._predict(prior)
-        if self._last_stamp is not None and 0.0 < stamp - self._last_stamp < 1.0:
+        if self._last_stamp is not None and 0.0 < stamp - self._last_stamp < 2.0:
             self._frame_interval = stamp - self._last_stamp
         self._last_stamp = stamp
         prior_arr = None if prior is None else np.asarray(prior, dtype=np.float64)
-
-        if self.frames == 0 or len(self.local_map) == 0:
-            self.frames += 1
-            pose = predicted if self.frames > 1 else self.pose
-            return self._finish(
-                pose, 0, 0, True, self.frames > 1, feats, points_cam, valid, None, prior_arr, timings, t0
-            )
-
-        matched_frame, matched_map = self._match(feats, predicted)
-        if len(matched_frame) < 2 * self.config.min_inliers:
-            # The prediction may be wrong (a bump, a slip): search the whole image instead.
-            matched_frame, matched_map = self._match(feats, None)
-        t2 = time.perf_counter()
-        timings["match"] = (t2 - t1) * 1e3
-        solved, inlier_index = self._solve(feats, matched_frame, matched_map, predicted)
-        t3 = time.perf_counter()
-        timings["pnp"] = (t3 - t2) * 1e3
+        prediction = self._predict(prior_arr)
+        frame = _Frame(feats, points_cam, valid, prior_arr)
         self.frames += 1
-        n_inliers = len(inlier_index)
-        if solved is not None and not self._consistent(solved, predicted):
-            logger.debug("odometry at %.3f: PnP pose far from the prediction, rejected", stamp)
-            solved = None
-        if solved is None or n_inliers < self.config.min_inliers:
-            logger.debug("odometry lost at %.3f: %d inliers", stamp, n_inliers)
-            return self._finish(
-                predicted,
-                n_inliers,
-                len(matched_frame),
-                True,
-                True,
-                feats,
-                points_cam,
-                valid,
-                None,
-                prior_arr,
-                timings,
-                t0,
+
+        if len(self.local_map) == 0:
+            start = self.pose if self.frames == 1 else prediction.pose
+            lost = self.frames > 1 and not prediction.from_wheels
+            return self._restart(start, frame, lost=lost, timings=timings, t0=t0)
+
+        matched_frame, matched_map, pose, inliers = self._track_map(frame, prediction, timings)
+        if pose is None:
+            return self._untracked(prediction, frame, len(matched_frame), timings, t0)
+        self._coasted = 0.0
+        self._lost_frames = 0
+        tracked_ids = self.local_map.ids[matched_map[inliers]]
+        self.local_map.last_seen[matched_map[inliers]] = self.frames
+        is_keyframe = self._needs_keyframe(pose, int(inliers.sum()))
+        t_kf = time.perf_counter()
+        if is_keyframe:
+            pose = self._insert_keyframe(pose, frame, matched_frame[inliers], tracked_ids)
+        timings["keyframe"] = (time.perf_counter() - t_kf) * 1e3
+        return self._finish(pose, int(inliers.sum()), len(matched_frame), is_keyframe, False, frame, timings, t0)
+
+    # -- tracking -----------------------------------------------------------------------------------------------
+    def _track_map(
+        self, frame: _Frame, prediction: _Prediction, timings: dict[str, float]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64] | None, NDArray[np.bool_]]:
+        """Matches (frame index, map row), the pose and the inlier mask; pose None when tracking failed."""
+        t1 = time.perf_counter()
+        need = self.config.min_inliers
+        radius = self.config.search_radius * self._pixel_scale
+        predicted = prediction.pose
+        use_prior = self.config.motion_prior_acceleration > 0
+        matched_frame, matched_map = self._match(frame.features, predicted, radius)
+        pose, inliers = None, np.zeros(len(matched_frame), bool)
+        timings["match"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        if len(matched_frame) >= need:
+            pose, inliers = self._optimize(
+                frame, matched_frame, matched_map, predicted, prediction if use_prior else None
             )
-        is_keyframe = self._needs_keyframe(solved, n_inliers)
-        used = matched_frame[inlier_index]
-        return self._finish(
-            solved,
-            n_inliers,
-            len(matched_frame),
-            is_keyframe,
-            False,
-            feats,
-            points_cam,
-            valid,
-            used,
-            prior_arr,
-            timings,
-            t0,
-        )
-
-    def constrain(self, pose: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The pose projected onto the robot's plane of motion when ``planar_motion`` is on (and the mounting
-        known); otherwise unchanged."""
-        if not self.config.planar_motion or self.base_camera is None:
-            return pose
-        return planar_camera_pose(pose, self.base_camera)
-
-    def relocalize(self, result: OdometryResult, pose: NDArray[np.float64]) -> OdometryResult:
-        """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
-        from it: the local map is re-seeded with this frame's points at the corrected pose."""
-        self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
-        self._velocity = np.eye(4)
-        self.local_map.clear()
-        world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
-        self.local_map.add(world, result.descriptors)
-        self._keyframe_pose = self.pose.copy()
-        self._keyframe_features = len(result.points3d)
-        result.pose = self.pose.copy()
-        result.lost = False
-        return result
+        if pose is None or inliers.sum() < 2 * need:
+            # The prediction may be off (a bump, a slip, a dropped stretch of frames): search wider, then the
+            # whole image, and let RANSAC find the pose without the prediction.
+            t_wide = time.perf_counter()
+            wide = self._match(frame.features, predicted, 4 * radius)
+            if len(wide[0]) < 2 * need:
+                wide = self._match(frame.features, None, 0.0)
+            timings["match"] += (time.perf_counter() - t_wide) * 1e3
+            ransac = self._ransac(frame, *wide, predicted)
+            if ransac is not None:
+                candidate, candidate_inliers = self._optimize(frame, *wide, ransac, None)
+                if candidate is not None and candidate_inliers.sum() > inliers.sum():
+                    pose, inliers = candidate, candidate_inliers
+                    matched_frame, matched_map = wide
+        timings["pose"] = (time.perf_counter() - t2) * 1e3
+        if pose is None or inliers.sum() < need or not self._plausible(pose, predicted):
+            return matched_frame, matched_map, None, inliers
+        return matched_frame, matched_map, pose, inliers
 
     def _match(
-        self, feats: Features, predicted: NDArray[np.float64] | None
+        self, feats: Features, predicted: NDArray[np.float64] | None, radius: float
     ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Ratio-test matches frame → local map; with a predicted pose only within ``search_radius`` pixels of
-        where each map point should appear (repetitive texture such as floor tiles then cannot mismatch)."""
+        """Ratio-test matches frame → local map; with a predicted pose only within ``radius`` pixels of where each
+        landmark should appear (repetitive texture such as floor tiles then cannot mismatch)."""
         if len(feats) < 2 or self.local_map.descriptors is None or len(self.local_map) < 2:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        if predicted is not None:
-            T_cw = invert(predicted)
-            cam = self.local_map.points @ T_cw[:3, :3].T + T_cw[:3, 3]
-            front = np.flatnonzero(cam[:, 2] > self.config.min_depth)
-            z = cam[front, 2]
-            projected = np.stack(
-                [
-                    self.intrinsics.fx * cam[front, 0] / z + self.intrinsics.cx,
-                    self.intrinsics.fy * cam[front, 1] / z + self.intrinsics.cy,
-                ],
-                axis=1,
-            )
-            q, t = match_by_projection(
-                feats.keypoints,
-                feats.descriptors,
-                projected,
-                self.local_map.descriptors[front],
-                self.config.search_radius,
-                self.config.match_ratio,
-                self.config.max_descriptor_distance if self.extractor.binary else 0.0,
-            )
-            return q, front[t]
-        return match_ratio(feats.descriptors, self.local_map.descriptors, self.config.match_ratio)
+        if predicted is None:
+            return match_ratio(feats.descriptors, self.local_map.descriptors, self.config.match_ratio)
+        T_cw = invert(predicted)
+        cam = self.local_map.points @ T_cw[:3, :3].T + T_cw[:3, 3]
+        z = np.maximum(cam[:, 2], 1e-9)
+        u = self.intrinsics.fx * cam[:, 0] / z + self.intrinsics.cx
+        v = self.intrinsics.fy * cam[:, 1] / z + self.intrinsics.cy
+        visible = np.flatnonzero(
+            (cam[:, 2] > self.config.min_depth)
+            & (u > -radius)
+            & (u < self.intrinsics.width + radius)
+            & (v > -radius)
+            & (v < self.intrinsics.height + radius)
+        )
+        q, t = match_by_projection(
+            feats.keypoints,
+            feats.descriptors,
+            np.stack([u[visible], v[visible]], axis=1),
+            self.local_map.descriptors[visible],
+            radius,
+            self.config.match_ratio,
+            self.config.max_descriptor_distance if self.extractor.binary else 0.0,
+        )
+        return q, visible[t]
 
-    def _solve(
+    def _optimize(
         self,
-        feats: Features,
+        frame: _Frame,
+        matched_frame: NDArray[np.intp],
+        matched_map: NDArray[np.intp],
+        start: NDArray[np.float64],
+        prediction: _Prediction | None,
+    ) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_]]:
+        """Robust motion-only optimisation of the frame's pose against the matched landmarks (reprojection and,
+        where the frame has depth, depth residuals) with the prediction as a prior (dropped when the matches
+        clearly contradict it); twice, dropping the matches the first pass found to be outliers. Returns
+        (``T_world_camera``, inlier mask)."""
+        n = len(matched_frame)
+        if n < 4:
+            return None, np.zeros(n, bool)
+        feats = frame.features
+        points = self.local_map.points[matched_map]
+        pixels = feats.keypoints[matched_frame].astype(np.float64)
+        pixel_std = self.config.pixel_std * feats.scales[matched_frame].astype(np.float64)
+        depths = np.where(frame.valid[matched_frame], frame.points[matched_frame, 2], 0.0)
+        basis = planar_basis(self.base_camera) if self.planar and self.base_camera is not None else None
+        huber = 2.0 * self.config.pixel_std * self._pixel_scale
+        T_cw = invert(start)
+        keep = np.ones(n, bool)
+        for iterations in (5, 3):
+            idx = np.flatnonzero(keep)
+            depth = (depths[idx], self.config.depth_noise)
+            if prediction is not None:
+                T_cw, _ = refine_pose_with_prior(
+                    T_cw, points[idx], pixels[idx], self._K, invert(prediction.pose), prediction.std,
+                    pixel_std=pixel_std[idx], huber_px=huber, iterations=iterations,
+                    gate=self.config.motion_prior_gate, basis=basis, depth=depth,
+                )  # fmt: skip
+            else:
+                T_cw = refine_pose(
+                    T_cw, points[idx], pixels[idx], self._K, pixel_std=pixel_std[idx], huber_px=huber,
+                    iterations=iterations, basis=basis, depth=depth,
+                )  # fmt: skip
+            chi2 = _chi2(T_cw, points, pixels, pixel_std, depths, self.config.depth_noise, self._K)
+            # χ² at 95 % for 2 (no depth) or 3 (with depth) residuals, as ORB-SLAM's mono/stereo thresholds.
+            keep = chi2 <= np.where(depths > 0, 7.815, 5.991)
+            if keep.sum() < 4:
+                return None, keep
+        return self.constrain(invert(T_cw)), keep
+
+    def _ransac(
+        self,
+        frame: _Frame,
         matched_frame: NDArray[np.intp],
         matched_map: NDArray[np.intp],
         predicted: NDArray[np.float64],
-    ) -> tuple[NDArray[np.float64] | None, NDArray[np.intp]]:
+    ) -> NDArray[np.float64] | None:
+        """PnP RANSAC pose (``T_world_camera``) from matches without relying on the prediction, or None."""
         cv2 = import_cv2()
         if len(matched_frame) < max(6, self.config.min_inliers):
-            return None, np.zeros(0, np.intp)
+            return None
         object_points = self.local_map.points[matched_map].astype(np.float64)
-        image_points = feats.keypoints[matched_frame].astype(np.float64)
+        image_points = frame.features.keypoints[matched_frame].astype(np.float64)
         rvec, tvec = _to_rvec_tvec(invert(predicted))
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             object_points,
@@ -304,56 +443,271 @@ class VisualOdometry:
             tvec,
             useExtrinsicGuess=True,
             iterationsCount=self.config.pnp_iterations,
-            reprojectionError=self.config.pnp_reprojection_error,
+            reprojectionError=self.config.pnp_reprojection_error * self._pixel_scale,
             confidence=0.99,
             flags=cv2.SOLVEPNP_ITERATIVE,
         )
-        if not ok or inliers is None or len(inliers) < 4:
-            return None, np.zeros(0, np.intp)
-        index = inliers.reshape(-1).astype(np.intp)
-        if self.config.motion_prior_acceleration <= 0:
-            rvec, tvec = cv2.solvePnPRefineLM(object_points[index], image_points[index], self._K, None, rvec, tvec)
-            return invert(_from_rvec_tvec(rvec, tvec)), index
-        # How far the motion can depart from the prediction within one frame interval: ½·a·Δt².
-        half_dt2 = 0.5 * self._frame_interval**2
-        start = _from_rvec_tvec(rvec, tvec)
-        basis = None
-        if self.config.planar_motion and self.base_camera is not None:
-            start = invert(self.constrain(invert(start)))
-            basis = planar_basis(self.base_camera)
-        T_cw, _ = refine_pose_with_prior(
-            start,
-            object_points[index],
-            image_points[index],
-            self._K,
-            invert(predicted),
-            (
-                self.config.motion_prior_acceleration * half_dt2,
-                self.config.motion_prior_angular_acceleration * half_dt2,
-            ),
-            huber_px=self.config.pnp_reprojection_error,
-            gate=self.config.motion_prior_gate,
-            basis=basis,
-        )
-        return invert(T_cw), index
+        if not ok or inliers is None or len(inliers) < self.config.min_inliers:
+            return None
+        return self.constrain(invert(_from_rvec_tvec(rvec, tvec)))
 
-    def _consistent(self, pose: NDArray[np.float64], predicted: NDArray[np.float64]) -> bool:
+    def _plausible(self, pose: NDArray[np.float64], predicted: NDArray[np.float64]) -> bool:
+        """A pose farther from the prediction than the platform could move in the frame interval is a failure."""
         error = invert(predicted) @ pose
+        dt = max(self._frame_interval, 1.0 / 30.0)
         return bool(
-            np.linalg.norm(error[:3, 3]) <= self.config.max_prediction_error
-            and np.degrees(rotation_angle(error)) <= self.config.max_prediction_error_deg
+            np.linalg.norm(error[:3, 3]) <= self.config.max_prediction_error * dt * 30.0
+            and np.degrees(rotation_angle(error)) <= self.config.max_prediction_error_deg * dt * 30.0
         )
 
+    # -- keyframes and the window -------------------------------------------------------------------------------
     def _needs_keyframe(self, pose: NDArray[np.float64], inliers: int) -> bool:
+        """A keyframe when the view moved or turned far from the last one, or it tracks too few landmarks — but
+        only once it moved or turned a little (``keyframe_min_*``): at a high camera rate, tracking counts that
+        dip for a frame would otherwise make keyframes a few millimetres apart, each adding its own error to the
+        map. Distances, not frame counts: the decision is the same at any camera rate."""
         if self._keyframe_pose is None:
             return True
-        if inliers < self.config.keyframe_inlier_ratio * self._keyframe_features:
-            return True
         motion = invert(self._keyframe_pose) @ pose
-        return bool(
-            np.linalg.norm(motion[:3, 3]) > self.config.keyframe_translation
-            or np.degrees(rotation_angle(motion)) > self.config.keyframe_rotation_deg
+        distance = float(np.linalg.norm(motion[:3, 3]))
+        turn = float(np.degrees(rotation_angle(motion)))
+        if distance > self.config.keyframe_translation or turn > self.config.keyframe_rotation_deg:
+            return True
+        if inliers < 2 * self.config.min_inliers:
+            return True  # about to lose the map: extend it now, wherever we are
+        moved = distance > self.config.keyframe_min_translation or turn > self.config.keyframe_min_rotation_deg
+        weak = inliers < self.config.keyframe_inlier_ratio * self._keyframe_tracked
+        return bool(moved and (weak or inliers < self.config.keyframe_min_tracked))
+
+    def _insert_keyframe(
+        self, pose: NDArray[np.float64], frame: _Frame, tracked: NDArray[np.intp], tracked_ids: NDArray[np.int64]
+    ) -> NDArray[np.float64]:
+        """Add the frame's new landmarks (measured depth, and triangulated with the last keyframe where the depth
+        camera saw nothing) and the frame to the window, bundle-adjust the window; returns the frame's adjusted
+        pose."""
+        new = frame.valid.copy()
+        new[tracked] = False
+        new_index = np.flatnonzero(new)
+        world = frame.points[new_index] @ pose[:3, :3].T + pose[:3, 3]
+        new_ids = self.local_map.add(world, frame.features.descriptors[new_index], self.frames)
+        unmeasured = ~frame.valid
+        unmeasured[tracked] = False
+        far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
+        observed = np.concatenate([tracked, new_index, far_index])
+        self.window.append(
+            _WindowKeyframe(
+                pose=pose.copy(),
+                landmarks=np.concatenate([tracked_ids, new_ids, far_ids]),
+                pixels=frame.features.keypoints[observed].astype(np.float64),
+                depths=np.where(frame.valid[observed], frame.points[observed, 2], 0.0),
+                scales=frame.features.scales[observed].astype(np.float64),
+                prior=frame.prior,
+            )
         )
+        feats = frame.features
+        self._candidates = _Candidates(
+            self.window[-1], feats.keypoints[leftover].astype(np.float64), feats.descriptors[leftover],
+            feats.scales[leftover].astype(np.float64),
+        )  # fmt: skip
+        if len(self.window) >= 2 and self.config.window_keyframes >= 2:
+            pose = self._adjust_window()
+        self._keyframe_pose = pose.copy()
+        self._keyframe_tracked = int(frame.valid.sum())
+        return pose
+
+    def _triangulate(
+        self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.int64], NDArray[np.intp]]:
+        """Landmarks from this keyframe's keypoints without depth matched to the last keyframe's along epipolar
+        segments (see :mod:`~fleetslam.slam.triangulation`); the last keyframe's window entry gains their
+        observations. Returns this frame's keypoint indices, the new landmark ids and the unmeasured keypoints
+        left over (the next keyframe's candidates)."""
+        candidates, self._candidates = self._candidates, None
+        feats = frame.features
+        found: tuple[NDArray[np.intp], NDArray[np.int64]] = (np.zeros(0, np.intp), np.zeros(0, np.int64))
+        if (
+            self.config.triangulate
+            and candidates is not None
+            and len(self.window)
+            and self.window[-1] is candidates.keyframe
+            and np.linalg.norm(pose[:3, 3] - candidates.keyframe.pose[:3, 3]) >= 0.02
+        ):
+            result = match_and_triangulate(
+                candidates.keyframe.pose, candidates.pixels, candidates.descriptors,
+                pose, feats.keypoints[unmeasured], feats.descriptors[unmeasured], feats.scales[unmeasured], self._K,
+                near=0.5 * self.config.max_depth, far=10.0 * self.config.max_depth,
+                tolerance_px=2.0 * self.config.pixel_std * self._pixel_scale,
+                min_parallax_deg=self.config.min_parallax_deg,
+            )  # fmt: skip
+            if len(result.points):
+                index = unmeasured[result.index_b]
+                ids = self.local_map.add(result.points, feats.descriptors[index], self.frames)
+                previous = candidates.keyframe
+                previous.landmarks = np.concatenate([previous.landmarks, ids])
+                previous.pixels = np.vstack([previous.pixels, candidates.pixels[result.index_a]])
+                previous.depths = np.concatenate([previous.depths, np.zeros(len(ids))])
+                previous.scales = np.concatenate([previous.scales, candidates.scales[result.index_a]])
+                found = (index, ids)
+                unmeasured = np.setdiff1d(unmeasured, index)
+        return found[0], found[1], unmeasured
+
+    def _adjust_window(self) -> NDArray[np.float64]:
+        """Bundle-adjust the window (its oldest keyframe fixed) and write the result back; returns the newest
+        keyframe's pose."""
+        window = list(self.window)
+        obs_pose = np.concatenate([np.full(len(kf.landmarks), k, np.intp) for k, kf in enumerate(window)])
+        ids = np.concatenate([kf.landmarks for kf in window])
+        _, found = self.local_map.rows(ids)
+        # Landmarks seen from one keyframe only constrain nothing but themselves.
+        unique, counts = np.unique(ids[found], return_counts=True)
+        shared = np.isin(ids, unique[counts >= 2]) & found
+        if shared.sum() < self.config.min_inliers:
+            return window[-1].pose
+        landmark_ids, point_index = np.unique(ids[shared], return_inverse=True)
+        point_rows, _ = self.local_map.rows(landmark_ids)
+        pixels = np.concatenate([kf.pixels for kf in window])[shared]
+        depths = np.concatenate([kf.depths for kf in window])[shared]
+        scales = np.concatenate([kf.scales for kf in window])[shared]
+        poses = np.stack([invert(kf.pose) for kf in window])
+        problem = self._problem(
+            poses,
+            self.local_map.points[point_rows],
+            obs_pose[shared],
+            point_index.astype(np.intp),
+            pixels,
+            depths,
+            scales,
+            fixed=np.arange(len(window)) == 0,
+        )
+        problem.priors = self._wheel_priors(window)
+        result = bundle_adjust(problem, iterations=self.config.window_iterations)
+        if not np.isfinite(result.final_cost) or result.final_cost > result.initial_cost:
+            return window[-1].pose
+        self.local_map.points[point_rows] = result.points
+        for kf, T_cw in zip(window, result.poses, strict=True):
+            kf.pose = orthonormalized(self.constrain(invert(T_cw)))
+        # Observations the adjustment found to be wrong matches leave the window.
+        bad = np.zeros(len(ids), bool)
+        bad[np.flatnonzero(shared)[~result.inliers]] = True
+        start = 0
+        for kf in window:
+            stop = start + len(kf.landmarks)
+            keep = ~bad[start:stop]
+            if not keep.all():
+                kf.landmarks, kf.pixels = kf.landmarks[keep], kf.pixels[keep]
+                kf.depths, kf.scales = kf.depths[keep], kf.scales[keep]
+            start = stop
+        return window[-1].pose
+
+    def _wheel_priors(self, window: list[_WindowKeyframe]) -> list[PosePrior]:
+        """Relative-pose priors between consecutive window keyframes from the wheel odometry: σ grows with the
+        distance and turn (slip), never below a millimetre and a tenth of a degree."""
+        if not self.config.use_prior or self.config.wheel_drift <= 0:
+            return []
+        priors = []
+        for k in range(1, len(window)):
+            a, b = window[k - 1].prior, window[k].prior
+            if a is None or b is None:
+                continue
+            measured = invert(a) @ b
+            sigma_t = self.config.wheel_drift * float(np.linalg.norm(measured[:3, 3])) + 1e-3
+            sigma_r = self.config.wheel_drift * rotation_angle(measured) + np.radians(0.1)
+            # The prior relates T_cw poses: T_c(k-1)_c(k) = T_cw(k-1)·T_cw(k)⁻¹ ⇒ measured is camera k in camera k-1.
+            priors.append(PosePrior(k - 1, k, measured, np.diag([sigma_t**-2] * 3 + [sigma_r**-2] * 3)))
+        return priors
+
+    def _problem(
+        self,
+        poses_cw: NDArray[np.float64],
+        points: NDArray[np.float64],
+        obs_pose: NDArray[np.intp],
+        obs_point: NDArray[np.intp],
+        pixels: NDArray[np.float64],
+        depths: NDArray[np.float64],
+        scales: NDArray[np.float64],
+        fixed: NDArray[np.bool_],
+    ) -> BundleProblem:
+        return BundleProblem(
+            poses=poses_cw,
+            points=points,
+            obs_pose=obs_pose,
+            obs_point=obs_point,
+            pixels=pixels,
+            depths=depths,
+            pixel_std=self.config.pixel_std * scales,
+            camera_matrix=self._K,
+            fixed=fixed,
+            depth_noise=self.config.depth_noise,
+            basis=planar_basis(self.base_camera) if self.planar and self.base_camera is not None else None,
+        )
+
+    # -- failures -----------------------------------------------------------------------------------------------
+    def _untracked(
+        self, prediction: _Prediction, frame: _Frame, matches: int, timings: dict[str, float], t0: float
+    ) -> OdometryResult:
+        """The frame could not be placed on the map: follow the prediction, keep the map while it may still match."""
+        predicted = prediction.pose
+        if prediction.from_wheels:
+            step = invert(self.pose) @ predicted
+            self._coasted += float(np.linalg.norm(step[:3, 3]))
+            if self._coasted > self.config.coast_distance:
+                logger.debug("odometry: %.2f m on the wheels without a match; map restarted", self._coasted)
+                return self._restart(predicted, frame, lost=False, timings=timings, t0=t0, coasting=True)
+            return self._finish(predicted, 0, matches, False, False, frame, timings, t0, coasting=True)
+        self._lost_frames += 1
+        if self._lost_frames >= self.config.lost_frames:
+            return self._restart(predicted, frame, lost=True, timings=timings, t0=t0)
+        return self._finish(predicted, 0, matches, False, True, frame, timings, t0)
+
+    def _restart(
+        self,
+        pose: NDArray[np.float64],
+        frame: _Frame,
+        *,
+        lost: bool,
+        timings: dict[str, float],
+        t0: float,
+        coasting: bool = False,
+    ) -> OdometryResult:
+        """Start the local map afresh from this frame at ``pose`` (a keyframe)."""
+        pose = self.constrain(pose)
+        self.local_map.clear()
+        self.window.clear()
+        self._candidates = None
+        self._coasted = 0.0
+        self._lost_frames = 0
+        self._keyframe_pose = None
+        pose = self._insert_keyframe(pose, frame, np.zeros(0, np.intp), np.zeros(0, np.int64))
+        result = self._finish(pose, 0, 0, True, lost, frame, timings, t0, coasting=coasting)
+        result.map_restarted = True
+        return result
+
+    def relocalize(self, result: OdometryResult, pose: NDArray[np.float64]) -> OdometryResult:
+        """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
+        from it: the local map is re-seeded with this frame's points at the corrected pose."""
+        self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
+        self._velocity = np.eye(4)
+        self.local_map.clear()
+        self.window.clear()
+        self._candidates = None
+        world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
+        ids = self.local_map.add(world, result.descriptors, self.frames)
+        self.window.append(
+            _WindowKeyframe(
+                pose=self.pose.copy(),
+                landmarks=ids,
+                pixels=result.keypoints.astype(np.float64),
+                depths=result.points3d[:, 2].astype(np.float64),
+                scales=np.ones(len(ids)),
+                prior=self._previous_prior,
+            )
+        )
+        self._keyframe_pose = self.pose.copy()
+        self._keyframe_tracked = len(result.points3d)
+        self._lost_frames = 0
+        result.pose = self.pose.copy()
+        result.lost = False
+        return result
 
     def _finish(
         self,
@@ -362,33 +716,18 @@ class VisualOdometry:
         matches: int,
         is_keyframe: bool,
         lost: bool,
-        feats: Features,
-        points_cam: NDArray[np.float64],
-        valid: NDArray[np.bool_],
-        matched_inliers: NDArray[np.intp] | None,
-        prior: NDArray[np.float64] | None,
+        frame: _Frame,
         timings: dict[str, float],
         t0: float,
+        *,
+        coasting: bool = False,
     ) -> OdometryResult:
-        t_update = time.perf_counter()
-        pose = self.constrain(pose)
+        pose = orthonormalized(self.constrain(pose))
         self._velocity = invert(self.pose) @ pose
         self.pose = pose
-        self._previous_prior = prior
-        if lost:
-            # Restart the local map here: old points cannot be matched, and keeping them would only
-            # pull the next PnP towards the wrong pose.
-            self.local_map.clear()
-        if is_keyframe:
-            new = valid.copy()
-            if matched_inliers is not None:
-                new[matched_inliers] = False
-            world = points_cam[new] @ pose[:3, :3].T + pose[:3, 3]
-            self.local_map.add(world, feats.descriptors[new])
-            self._keyframe_pose = pose.copy()
-            self._keyframe_features = int(valid.sum())
-        timings["update"] = (time.perf_counter() - t_update) * 1e3
+        self._previous_prior = frame.prior
         timings["total"] = (time.perf_counter() - t0) * 1e3
+        valid = frame.valid
         return OdometryResult(
             pose=pose.copy(),
             inliers=inliers,
@@ -396,10 +735,60 @@ class VisualOdometry:
             is_keyframe=is_keyframe,
             lost=lost,
             timings=timings,
-            keypoints=feats.keypoints[valid],
-            points3d=points_cam[valid].astype(np.float32),
-            descriptors=feats.descriptors[valid],
+            keypoints=frame.features.keypoints[valid],
+            points3d=frame.points[valid].astype(np.float32),
+            descriptors=frame.features.descriptors[valid],
+            coasting=coasting,
         )
+
+
+@dataclass
+class _Frame:
+    """One frame's features and their 3D points."""
+
+    features: Features
+    points: NDArray[np.float64]
+    """(N, 3) camera-frame points of the keypoints (valid where ``valid``)."""
+    valid: NDArray[np.bool_]
+    prior: NDArray[np.float64] | None
+
+
+@dataclass
+class _Candidates:
+    """A keyframe's keypoints without depth, waiting for the next keyframe to be triangulated with."""
+
+    keyframe: _WindowKeyframe
+    pixels: NDArray[np.float64]
+    descriptors: NDArray[Any]
+    scales: NDArray[np.float64]
+
+
+@dataclass
+class _Prediction:
+    """Where the motion model puts the frame, and how far it may be off (metres, radians per axis)."""
+
+    pose: NDArray[np.float64]
+    std: tuple[float, float]
+    from_wheels: bool
+
+
+def _chi2(
+    T_cw: NDArray[np.float64],
+    points: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    pixel_std: NDArray[np.float64],
+    depths: NDArray[np.float64],
+    depth_noise: float,
+    camera_matrix: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Whitened squared residual (reprojection, and depth where measured) of each point at a pose."""
+    k = camera_matrix
+    p = points @ T_cw[:3, :3].T + T_cw[:3, 3]
+    z = np.maximum(p[:, 2], 1e-6)
+    du = (k[0, 0] * p[:, 0] / z + k[0, 2] - pixels[:, 0]) / pixel_std
+    dv = (k[1, 1] * p[:, 1] / z + k[1, 2] - pixels[:, 1]) / pixel_std
+    dz = np.where(depths > 0, (p[:, 2] - depths) / (depth_noise * depths**2 + 1e-3), 0.0)
+    return np.where(p[:, 2] > 1e-6, du**2 + dv**2 + dz**2, np.inf)
 
 
 def make_odometry(

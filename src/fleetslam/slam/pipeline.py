@@ -58,6 +58,8 @@ class StepResult:
     """Graph node id when this frame became a keyframe."""
     loop_closed: bool
     """A loop closure was accepted on this frame (keyframe poses moved)."""
+    relocalized: bool = False
+    """Tracking was lost and this frame was put back on the map by verification against a keyframe."""
 
 
 class SlamPipeline:
@@ -128,6 +130,7 @@ class SlamPipeline:
             "inliers": result.inliers,
             "keyframe": result.is_keyframe,
             "lost": result.lost,
+            "coasting": result.coasting,
         }
         if relocalized is not None:
             record["relocalized_on"] = relocalized
@@ -148,7 +151,11 @@ class SlamPipeline:
         keyframe_pose = self.graph.optimize()[self._last_kf]
         pose = keyframe_pose @ invert(self.keyframe_odometry[self._last_kf]) @ result.pose
         return StepResult(
-            pose=pose, odometry=result, keyframe_id=new_keyframe, loop_closed=len(self._accepted) > loops_before
+            pose=pose,
+            odometry=result,
+            keyframe_id=new_keyframe,
+            loop_closed=len(self._accepted) > loops_before,
+            relocalized=relocalized is not None,
         )
 
     def _relocalize(self, stamp: float, result: Any) -> int | None:

@@ -23,6 +23,11 @@ class PoseBuffer:
     def __len__(self) -> int:
         return len(self._stamps)
 
+    @property
+    def newest_stamp(self) -> float | None:
+        """Stamp of the newest pose, or None when empty."""
+        return self._stamps[-1] if self._stamps else None
+
     def clear(self) -> None:
         self._stamps.clear()
         self._poses.clear()

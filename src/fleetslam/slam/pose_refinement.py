@@ -21,15 +21,6 @@ from numpy.typing import NDArray
 from fleetslam.geometry import skew, so3_exp, so3_log
 
 
-def _skew_rows(p: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(N, 3, 3) skew-symmetric matrices of the rows of ``p``."""
-    out = np.zeros((len(p), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -p[:, 2], p[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = p[:, 2], -p[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -p[:, 1], p[:, 0]
-    return out
-
-
 def _pose_error(pose: NDArray[np.float64], reference_inverse: NDArray[np.float64]) -> NDArray[np.float64]:
     """(translation, rotation vector) of ``pose · reference⁻¹``."""
     error = pose @ reference_inverse
@@ -42,35 +33,50 @@ def _gauss_newton(
     pixels: NDArray[np.float64],
     camera_matrix: NDArray[np.float64],
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
-    pixel_std: float,
+    pixel_std: float | NDArray[np.float64],
     huber_px: float,
     iterations: int,
     basis: NDArray[np.float64] | None = None,
+    depth: tuple[NDArray[np.float64], float] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-    """Minimise the robust reprojection error (plus the prior ``(T_prior⁻¹, information)`` if given); returns
-    the pose, the reprojection term's Gauss–Newton Hessian at it and the a-posteriori variance factor (the
-    weighted squared residuals per degree of freedom: about 1 when ``pixel_std`` is right)."""
+    """Minimise the robust reprojection error (plus the prior ``(T_prior⁻¹, information)`` if given, and the depth
+    residuals ``(measured depths, noise)`` where a depth is > 0: σ(z) = noise·z² + 1 mm); returns the pose, the
+    reprojection term's Gauss–Newton Hessian at it and the a-posteriori variance factor (the weighted squared
+    residuals per degree of freedom: about 1 when ``pixel_std`` is right)."""
     fx, fy, cx, cy = camera_matrix[0, 0], camera_matrix[1, 1], camera_matrix[0, 2], camera_matrix[1, 2]
-    identity = np.broadcast_to(np.eye(3), (len(points_world), 3, 3))
+    n = len(points_world)
+    sigma = np.broadcast_to(np.asarray(pixel_std, np.float64), (n,))
+    huber = huber_px / sigma  # the kernel's threshold in standard deviations, per point
+    if depth is not None:
+        measured = np.nan_to_num(np.asarray(depth[0], np.float64), nan=0.0)
+        has_depth = measured > 0
+        sigma_z = depth[1] * measured**2 + 1e-3
     hessian = np.eye(6)
     variance_factor = 1.0
     for _ in range(iterations):
         p = points_world @ pose[:3, :3].T + pose[:3, 3]
         z = np.maximum(p[:, 2], 1e-6)
         residual = np.stack([fx * p[:, 0] / z + cx - pixels[:, 0], fy * p[:, 1] / z + cy - pixels[:, 1]], axis=1)
-        norm = np.linalg.norm(residual, axis=1)
-        weight = np.where(norm <= huber_px, 1.0, huber_px / np.maximum(norm, 1e-12)) / pixel_std**2
-        weight = weight * (p[:, 2] > 1e-6)
-        d_proj = np.zeros((len(p), 2, 3))
+        residual /= sigma[:, None]
+        d_proj = np.zeros((n, 3, 3))
         d_proj[:, 0, 0], d_proj[:, 0, 2] = fx / z, -fx * p[:, 0] / z**2
         d_proj[:, 1, 1], d_proj[:, 1, 2] = fy / z, -fy * p[:, 1] / z**2
-        jacobian = d_proj @ np.concatenate([identity, -_skew_rows(p)], axis=2)  # (N, 2, 6)
+        d_proj[:, :2] /= sigma[:, None, None]
+        if depth is not None:
+            residual = np.concatenate([residual, np.where(has_depth, (p[:, 2] - measured) / sigma_z, 0.0)[:, None]], 1)
+            d_proj[:, 2, 2] = np.where(has_depth, 1.0 / sigma_z, 0.0)
+        norm = np.linalg.norm(residual, axis=1)
+        weight = np.where(norm <= huber, 1.0, huber / np.maximum(norm, 1e-12))
+        weight = weight * (p[:, 2] > 1e-6)
+        rows = residual.shape[1]
+        # ∂p/∂δ = [I | −[p]×]; a row aᵀ times −[p]× is (p × a)ᵀ.
+        jacobian = np.concatenate([d_proj[:, :rows], np.cross(p[:, None, :], d_proj[:, :rows])], axis=2)
         if basis is not None:
-            jacobian = jacobian @ basis  # (N, 2, k): only the allowed motions
+            jacobian = jacobian @ basis  # (N, rows, k): only the allowed motions
         weighted = jacobian * weight[:, None, None]
         hessian = np.einsum("nki,nkj->ij", weighted, jacobian)
         gradient = np.einsum("nki,nk->i", weighted, residual)
-        variance_factor = float(np.sum(weight * norm**2) / max(2 * len(p) - 6, 1))
+        variance_factor = float(np.sum(weight * norm**2) / max(rows * n - 6, 1))
         system = hessian
         if prior is not None:
             prior_inverse, information = prior
@@ -85,7 +91,7 @@ def _gauss_newton(
         update[:3, :3] = so3_exp(step[3:])
         update[:3, 3] = step[:3]
         pose = update @ pose
-        if np.linalg.norm(step) < 1e-10:
+        if np.linalg.norm(step) < 1e-6:  # a micrometre, a microradian
             break
     return pose, hessian, variance_factor
 
@@ -96,16 +102,17 @@ def refine_pose(
     pixels: NDArray[np.float64],
     camera_matrix: NDArray[np.float64],
     *,
-    pixel_std: float = 1.0,
+    pixel_std: float | NDArray[np.float64] = 1.0,
     huber_px: float = 2.0,
     iterations: int = 6,
     basis: NDArray[np.float64] | None = None,
+    depth: tuple[NDArray[np.float64], float] | None = None,
 ) -> NDArray[np.float64]:
-    """``T_camera_world`` minimising the robust reprojection error alone (no prior); ``basis`` as in
-    :func:`refine_pose_with_prior`."""
+    """``T_camera_world`` minimising the robust reprojection (and depth) error alone (no prior); ``basis`` and
+    ``depth`` as in :func:`refine_pose_with_prior`."""
     pose, _, _ = _gauss_newton(
         np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, None, pixel_std, huber_px,
-        iterations, basis,
+        iterations, basis, depth,
     )  # fmt: skip
     return pose
 
@@ -132,16 +139,19 @@ def refine_pose_with_prior(
     prior_camera_world: NDArray[np.float64],
     prior_std: tuple[float, float],
     *,
-    pixel_std: float = 1.0,
+    pixel_std: float | NDArray[np.float64] = 1.0,
     huber_px: float = 2.0,
     iterations: int = 6,
     gate: float = 1000.0,
     basis: NDArray[np.float64] | None = None,
+    depth: tuple[NDArray[np.float64], float] | None = None,
 ) -> tuple[NDArray[np.float64], bool]:
     """Refined ``T_camera_world`` (see the module docstring) and whether the prior was used.
 
     ``basis`` (6, k) restricts the update to k motions (columns: left perturbations of ``T_camera_world`` as
     translation, rotation), e.g. a ground robot's x, y and yaw. ``prior_std`` is (metres, radians) per axis.
+    ``pixel_std`` may differ per point (a keypoint's pyramid level); ``depth`` = (the frame's measured depth of
+    each point, 0 where none; the sensor's noise coefficient) adds depth residuals (an RGB-D frame).
     The prior is dropped when the reprojection-only estimate and the prediction disagree grossly (squared
     Mahalanobis distance over their combined uncertainty above ``gate``): then the prediction is what is wrong
     (a collision, a slip, a hand-held jerk). The gate is far above χ²₆'s 22.5 because the reprojection
@@ -152,11 +162,11 @@ def refine_pose_with_prior(
     prior_inverse: NDArray[np.float64] = np.linalg.inv(np.asarray(prior_camera_world, np.float64))
     args = (points_world, pixels, camera_matrix)
     alone, hessian, variance_factor = _gauss_newton(
-        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations, basis
+        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations, basis, depth
     )
     # The points' real scatter (depth quantisation, keypoint noise) sets the weight of the reprojection term:
     # scale pixel_std by the observed residuals, never below the nominal value.
-    pixel_std = pixel_std * math.sqrt(max(variance_factor, 1.0))
+    pixel_std = np.asarray(pixel_std, np.float64) * math.sqrt(max(variance_factor, 1.0))
     innovation = _pose_error(alone, prior_inverse)
     if basis is not None:
         # Compare in the allowed motions' coordinates (least squares: the innovation's other part is 0).
@@ -167,5 +177,7 @@ def refine_pose_with_prior(
     combined = np.linalg.pinv(hessian) * max(variance_factor, 1.0) + np.linalg.inv(information_k)
     if float(innovation @ np.linalg.solve(combined, innovation)) > gate:
         return alone, False
-    fused, _, _ = _gauss_newton(alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations, basis)
+    fused, _, _ = _gauss_newton(
+        alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations, basis, depth
+    )
     return fused, True
