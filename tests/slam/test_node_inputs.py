@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from fleetslam.geometry import pose_from_planar
 from fleetslam.middleware import Context, Node, QoSProfile
@@ -53,3 +54,24 @@ def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: 
     assert prior is not None
     np.testing.assert_allclose(prior, pose_from_planar(0.55, 0.0, 0.0) @ base_camera, atol=1e-9)
     assert slam.wheel_prior(5.0) is None  # long after the last wheel pose: no stale prior
+
+
+def test_images_are_decoded_with_their_row_step_and_byte_order() -> None:
+    from functools import partial
+
+    from fleetslam.middleware.typesys import get_type, header
+    from fleetslam.slam.node import image_to_array
+
+    image = partial(get_type("sensor_msgs/msg/Image"), header=header("camera", 0))
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    padded = np.zeros((2, 12), np.uint8)  # rows padded to 12 bytes, as some drivers align them
+    padded[:, :9] = rgb.reshape(2, 9)
+    msg = image(height=2, width=3, encoding="rgb8", is_bigendian=0, step=12, data=padded.reshape(-1))
+    np.testing.assert_array_equal(image_to_array(msg), rgb)
+    depth_mm = np.array([[1000, 2500], [0, 65535]], dtype=">u2")  # big-endian 16UC1, millimetres
+    msg = image(height=2, width=2, encoding="16UC1", is_bigendian=1, step=4,
+                data=np.frombuffer(depth_mm.tobytes(), np.uint8).copy())  # fmt: skip
+    np.testing.assert_allclose(image_to_array(msg), [[1.0, 2.5], [0.0, 65.535]], rtol=1e-6)
+    short = image(height=4, width=3, encoding="rgb8", is_bigendian=0, step=9, data=np.zeros(20, np.uint8))
+    with pytest.raises(ValueError, match="does not fit"):
+        image_to_array(short)

@@ -38,11 +38,10 @@ class FrameQueue:
         self._cond = threading.Condition()
         self._closed = False
         self.received = 0
-        """Complete pairs."""
+        """Camera frames seen (distinct stamps, counted at their first half)."""
         self.dropped = 0
-        """Complete pairs replaced by a newer one before the consumer took them."""
-        self.unpaired = 0
-        """Halves evicted without their partner."""
+        """Frames never handed out: complete pairs replaced by a newer one before the consumer took them, and
+        halves evicted without their partner (the other half lost on the way or overwritten in a full queue)."""
 
     def put_rgb(self, stamp_ns: int, msg: Any) -> None:
         self._put(stamp_ns, msg, self._rgb, self._depth, rgb_first=True)
@@ -56,18 +55,25 @@ class FrameQueue:
         with self._cond:
             partner = other.pop(stamp_ns, None)
             if partner is None:
+                if stamp_ns not in mine:
+                    self.received += 1
                 mine[stamp_ns] = msg
                 mine.move_to_end(stamp_ns)
                 while len(mine) > self.max_pending:
                     mine.popitem(last=False)
-                    self.unpaired += 1
+                    self.dropped += 1
                 return
             rgb, depth = (msg, partner) if rgb_first else (partner, msg)
-            self.received += 1
             if self._ready is not None:
                 self.dropped += 1
             self._ready = FramePair(stamp_ns, rgb, depth, time.monotonic())
             self._cond.notify_all()
+
+    @property
+    def pending(self) -> int:
+        """Frames seen but neither handed out nor dropped yet (a half waiting, or a pair ready)."""
+        with self._cond:
+            return len(self._rgb) + len(self._depth) + (self._ready is not None)
 
     def take(self, timeout_s: float | None = None) -> FramePair | None:
         """The newest complete pair, waiting up to ``timeout_s`` for one (None on timeout or when closed)."""

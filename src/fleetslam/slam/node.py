@@ -157,9 +157,12 @@ class SlamNode:
         self.diagnostics_pub = node.create_publisher(
             "diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5)
         )
-        images = QoSProfile(depth=2)
-        node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images)
-        node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images)
+        # The frame queue drops stale frames itself (and counts them); the subscriptions only bridge a busy moment.
+        images = QoSProfile(depth=self.config.max_pending)
+        self._image_subscriptions = [
+            node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images),
+            node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images),
+        ]
         node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
         if self.config.use_wheel_odometry:
             node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=50))
@@ -319,6 +322,9 @@ class SlamNode:
             "frames_received": self.queue.received,
             "frames_processed": self.frames,
             "frames_dropped": self.queue.dropped,
+            "frames_pending": self.queue.pending,
+            # Images the subscriptions overwrote before the node's callbacks saw them (a starved process).
+            "images_overwritten": sum(sub.queue_overflows for sub in self._image_subscriptions),
             **self.counts,
             "odometry_ms": round(float(timings.get("total", 0.0)), 2),
             "odometry_ms_mean": round(float(np.mean(self._odometry_ms)), 2),
