@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import skew, so3_exp, so3_log
+from fleetslam.geometry import invert, skew, so3_exp, so3_log
 
 #: Huber threshold on the whitened residual's norm: √(χ²₃ at 95 %).
 HUBER = float(np.sqrt(7.815))
@@ -113,31 +113,26 @@ def _pose_error(measured_inverse: NDArray[np.float64], relative: NDArray[np.floa
 
 
 class _Evaluation:
-    """Residuals, robust weights and whitened Jacobians of every observation at one linearisation point."""
+    """Residuals, robust weights and cost of every observation at one point; the whitened Jacobians only on
+    demand (:meth:`linearize`), as a rejected trial step never needs them."""
 
     def __init__(self, problem: BundleProblem, poses: NDArray[np.float64], points: NDArray[np.float64]) -> None:
         k = problem.camera_matrix
         fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-        rotation = poses[problem.obs_pose, :3, :3]
-        p = np.einsum("mij,mj->mi", rotation, points[problem.obs_point]) + poses[problem.obs_pose, :3, 3]
+        self.problem = problem
+        self.rotation = poses[problem.obs_pose, :3, :3]
+        p = (self.rotation @ points[problem.obs_point][:, :, None])[:, :, 0] + poses[problem.obs_pose, :3, 3]
         z = p[:, 2]
         in_front = z > 1e-3
-        z_safe = np.where(in_front, z, 1.0)
+        inv_z = 1.0 / np.where(in_front, z, 1.0)
         depth = np.nan_to_num(problem.depths, nan=0.0)
         has_depth = (depth > 0) & in_front
         sigma_z = problem.depth_noise * np.where(has_depth, depth, 1.0) ** 2 + problem.depth_floor
         residual = np.zeros((len(p), 3))
-        residual[:, 0] = (fx * p[:, 0] / z_safe + cx - problem.pixels[:, 0]) / problem.pixel_std
-        residual[:, 1] = (fy * p[:, 1] / z_safe + cy - problem.pixels[:, 1]) / problem.pixel_std
+        residual[:, 0] = (fx * p[:, 0] * inv_z + cx - problem.pixels[:, 0]) / problem.pixel_std
+        residual[:, 1] = (fy * p[:, 1] * inv_z + cy - problem.pixels[:, 1]) / problem.pixel_std
         residual[:, 2] = np.where(has_depth, (z - depth) / sigma_z, 0.0)
         residual[~in_front] = 0.0
-        d_proj = np.zeros((len(p), 3, 3))
-        d_proj[:, 0, 0] = fx / z_safe / problem.pixel_std
-        d_proj[:, 0, 2] = -fx * p[:, 0] / z_safe**2 / problem.pixel_std
-        d_proj[:, 1, 1] = fy / z_safe / problem.pixel_std
-        d_proj[:, 1, 2] = -fy * p[:, 1] / z_safe**2 / problem.pixel_std
-        d_proj[:, 2, 2] = np.where(has_depth, 1.0 / sigma_z, 0.0)
-        d_proj[~in_front] = 0.0
         chi2 = np.einsum("mi,mi->m", residual, residual)
         norm = np.sqrt(chi2)
         self.weight = np.where(norm <= HUBER, 1.0, HUBER / np.maximum(norm, 1e-12))
@@ -146,10 +141,32 @@ class _Evaluation:
         self.cost = float(np.sum(np.where(norm <= HUBER, chi2, 2 * HUBER * norm - HUBER**2)))
         self.chi2 = np.where(in_front, chi2, np.inf)
         self.residual = residual
-        # ∂p/∂δ = [I | −[p]×]; a row aᵀ times −[p]× is (p × a)ᵀ.
-        jacobian_pose = np.concatenate([d_proj, np.cross(p[:, None, :], d_proj)], axis=2)
-        self.jacobian_pose = jacobian_pose if problem.basis is None else jacobian_pose @ problem.basis
-        self.jacobian_point = d_proj @ rotation
+        self._p, self._inv_z, self._in_front = p, inv_z, in_front
+        self._depth_weight = np.where(has_depth, 1.0 / sigma_z, 0.0)
+        self.jacobian_pose = self.jacobian_point = np.zeros((0, 3, 3))
+
+    def linearize(self) -> None:
+        """Whitened Jacobians in the pose (left perturbation, through ``basis``) and in the point."""
+        problem = self.problem
+        k = problem.camera_matrix
+        p, inv_z, std = self._p, self._inv_z, problem.pixel_std
+        d_proj = np.zeros((len(p), 3, 3))
+        d_proj[:, 0, 0] = k[0, 0] * inv_z / std
+        d_proj[:, 0, 2] = -k[0, 0] * p[:, 0] * inv_z**2 / std
+        d_proj[:, 1, 1] = k[1, 1] * inv_z / std
+        d_proj[:, 1, 2] = -k[1, 1] * p[:, 1] * inv_z**2 / std
+        d_proj[:, 2, 2] = self._depth_weight
+        d_proj[~self._in_front] = 0.0
+        # ∂p/∂δ = [I | −[p]×]; a row aᵀ times −[p]× is (p × a)ᵀ, written out.
+        jacobian = np.empty((len(p), 3, 6))
+        jacobian[:, :, :3] = d_proj
+        a0, a1, a2 = d_proj[:, :, 0], d_proj[:, :, 1], d_proj[:, :, 2]
+        px, py, pz = p[:, 0:1], p[:, 1:2], p[:, 2:3]
+        jacobian[:, :, 3] = py * a2 - pz * a1
+        jacobian[:, :, 4] = pz * a0 - px * a2
+        jacobian[:, :, 5] = px * a1 - py * a0
+        self.jacobian_pose = jacobian if problem.basis is None else jacobian @ problem.basis
+        self.jacobian_point = d_proj @ self.rotation
 
 
 def _adjoint(pose: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -161,25 +178,35 @@ def _adjoint(pose: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+def _prepare_priors(problem: BundleProblem) -> list[tuple[PosePrior, NDArray[np.float64], NDArray[np.float64]]]:
+    """Per prior: itself, the square root of its information (information = rootᵀ·root) and M⁻¹."""
+    return [
+        (prior, np.linalg.cholesky(prior.information).T, np.asarray(np.linalg.inv(prior.measured), np.float64))
+        for prior in problem.priors
+    ]
+
+
 def _prior_terms(
-    problem: BundleProblem, poses: NDArray[np.float64]
+    prepared: list[tuple[PosePrior, NDArray[np.float64], NDArray[np.float64]]],
+    poses: NDArray[np.float64],
+    basis: NDArray[np.float64],
+    *,
+    jacobians: bool = True,
 ) -> tuple[float, list[tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]]:
     """Cost of the pose priors and, per prior, (i, j, whitened residual, its Jacobians in i's and j's δ).
 
     With ``R = T_i·T_j⁻¹`` the residual is e = Log(M⁻¹·R); perturbing, M⁻¹·exp(δ_i)·R·exp(−δ_j) =
     M⁻¹·R·exp(Ad(R⁻¹)·δ_i)·exp(−δ_j), so to first order ∂e/∂δ_i = Ad(R⁻¹) and ∂e/∂δ_j = −I (exact at e = 0,
     enough for Gauss–Newton near the solution)."""
-    basis = np.eye(6) if problem.basis is None else problem.basis
     cost = 0.0
     terms = []
-    for prior in problem.priors:
-        root = np.linalg.cholesky(prior.information).T  # information = rootᵀ·root
-        relative = np.asarray(poses[prior.i] @ np.linalg.inv(poses[prior.j]), np.float64)
-        value = root @ _pose_error(np.asarray(np.linalg.inv(prior.measured), np.float64), relative)
+    for prior, root, measured_inverse in prepared:
+        relative = poses[prior.i] @ invert(poses[prior.j])
+        value = root @ _pose_error(measured_inverse, relative)
         cost += float(value @ value)
-        jac_i = root @ _adjoint(np.asarray(np.linalg.inv(relative), np.float64)) @ basis
-        jac_j = -root @ basis
-        terms.append((prior.i, prior.j, value, jac_i, jac_j))
+        if jacobians:
+            jac_i = root @ _adjoint(invert(relative)) @ basis
+            terms.append((prior.i, prior.j, value, jac_i, -root @ basis))
     return cost, terms
 
 
@@ -208,7 +235,9 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
     var_of[variable] = np.arange(len(variable))
     n_var = len(variable)
     evaluation = _Evaluation(problem, poses, points)
-    prior_cost, prior_terms = _prior_terms(problem, poses)
+    evaluation.linearize()
+    prepared = _prepare_priors(problem)
+    prior_cost, prior_terms = _prior_terms(prepared, poses, basis)
     cost = evaluation.cost + prior_cost
     initial_cost = cost
     damping = 1e-4
@@ -272,11 +301,12 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
             back = g_p + _scatter(coupled_point, per_obs[:, :, 0], n_points)
             new_points = points - (h_pp_inverse @ back[:, :, None])[:, :, 0]
         trial = _Evaluation(problem, new_poses, new_points)
-        trial_prior_cost, trial_prior_terms = _prior_terms(problem, new_poses)
-        trial_cost = trial.cost + trial_prior_cost
+        trial_cost = trial.cost + _prior_terms(prepared, new_poses, basis, jacobians=False)[0]
         if trial_cost < cost:
             improvement = (cost - trial_cost) / max(cost, 1e-12)
-            poses, points, evaluation, prior_terms, cost = new_poses, new_points, trial, trial_prior_terms, trial_cost
+            poses, points, evaluation, cost = new_poses, new_points, trial, trial_cost
+            evaluation.linearize()
+            prior_terms = _prior_terms(prepared, poses, basis)[1]
             damping = max(damping / 3.0, 1e-7)
             if improvement < tolerance:
                 break

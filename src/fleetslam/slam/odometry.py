@@ -399,25 +399,31 @@ class VisualOdometry:
         huber = 2.0 * self.config.pixel_std * self._pixel_scale
         T_cw = invert(start)
         keep = np.ones(n, bool)
-        for iterations in (5, 3):
+        fused: tuple[NDArray[np.float64], tuple[float, float]] | None = None
+        for first in (True, False):
             idx = np.flatnonzero(keep)
             depth = (depths[idx], self.config.depth_noise)
-            if prediction is not None:
-                T_cw, _ = refine_pose_with_prior(
+            if first and prediction is not None:
+                # Whether the prediction may be fused is decided once, on every match (the gate).
+                T_cw, used = refine_pose_with_prior(
                     T_cw, points[idx], pixels[idx], self._K, invert(prediction.pose), prediction.std,
-                    pixel_std=pixel_std[idx], huber_px=huber, iterations=iterations,
+                    pixel_std=pixel_std[idx], huber_px=huber, iterations=4,
                     gate=self.config.motion_prior_gate, basis=basis, depth=depth,
                 )  # fmt: skip
+                fused = (invert(prediction.pose), prediction.std) if used else None
             else:
                 T_cw = refine_pose(
                     T_cw, points[idx], pixels[idx], self._K, pixel_std=pixel_std[idx], huber_px=huber,
-                    iterations=iterations, basis=basis, depth=depth,
+                    iterations=4 if first else 3, basis=basis, depth=depth, prior=fused,
                 )  # fmt: skip
             chi2 = _chi2(T_cw, points, pixels, pixel_std, depths, self.config.depth_noise, self._K)
             # χ² at 95 % for 2 (no depth) or 3 (with depth) residuals, as ORB-SLAM's mono/stereo thresholds.
-            keep = chi2 <= np.where(depths > 0, 7.815, 5.991)
-            if keep.sum() < 4:
-                return None, keep
+            inliers = chi2 <= np.where(depths > 0, 7.815, 5.991)
+            if inliers.sum() < 4:
+                return None, inliers
+            if first and inliers.all():
+                return self.constrain(invert(T_cw)), inliers
+            keep = inliers
         return self.constrain(invert(T_cw)), keep
 
     def _ransac(

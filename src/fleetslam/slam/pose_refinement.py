@@ -47,35 +47,44 @@ def _gauss_newton(
     n = len(points_world)
     sigma = np.broadcast_to(np.asarray(pixel_std, np.float64), (n,))
     huber = huber_px / sigma  # the kernel's threshold in standard deviations, per point
+    has_depth = np.zeros(n, bool)
+    measured = sigma_z = np.ones(n)
     if depth is not None:
         measured = np.nan_to_num(np.asarray(depth[0], np.float64), nan=0.0)
         has_depth = measured > 0
         sigma_z = depth[1] * measured**2 + 1e-3
     hessian = np.eye(6)
     variance_factor = 1.0
+    rows = 3 if depth is not None else 2
     for _ in range(iterations):
         p = points_world @ pose[:3, :3].T + pose[:3, 3]
-        z = np.maximum(p[:, 2], 1e-6)
-        residual = np.stack([fx * p[:, 0] / z + cx - pixels[:, 0], fy * p[:, 1] / z + cy - pixels[:, 1]], axis=1)
-        residual /= sigma[:, None]
-        d_proj = np.zeros((n, 3, 3))
-        d_proj[:, 0, 0], d_proj[:, 0, 2] = fx / z, -fx * p[:, 0] / z**2
-        d_proj[:, 1, 1], d_proj[:, 1, 2] = fy / z, -fy * p[:, 1] / z**2
-        d_proj[:, :2] /= sigma[:, None, None]
+        px, py, pz = p[:, 0], p[:, 1], p[:, 2]
+        z = np.maximum(pz, 1e-6)
+        inv_z = 1.0 / z
+        residual = np.empty((n, rows))
+        residual[:, 0] = (fx * px * inv_z + cx - pixels[:, 0]) / sigma
+        residual[:, 1] = (fy * py * inv_z + cy - pixels[:, 1]) / sigma
+        # Whitened Jacobian rows of (u, v[, z]) in p: u: (a0, 0, a2), v: (0, b1, b2), z: (0, 0, c); of the pose,
+        # ∂p/∂δ = [I | −[p]×], where a row aᵀ times −[p]× is (p × a)ᵀ — written out for the zeros.
+        a0, a2 = fx * inv_z / sigma, -fx * px * inv_z**2 / sigma
+        b1, b2 = fy * inv_z / sigma, -fy * py * inv_z**2 / sigma
+        jacobian = np.zeros((n, rows, 6))
+        jacobian[:, 0, 0], jacobian[:, 0, 2] = a0, a2
+        jacobian[:, 0, 3], jacobian[:, 0, 4], jacobian[:, 0, 5] = py * a2, pz * a0 - px * a2, -py * a0
+        jacobian[:, 1, 1], jacobian[:, 1, 2] = b1, b2
+        jacobian[:, 1, 3], jacobian[:, 1, 4], jacobian[:, 1, 5] = py * b2 - pz * b1, -px * b2, px * b1
         if depth is not None:
-            residual = np.concatenate([residual, np.where(has_depth, (p[:, 2] - measured) / sigma_z, 0.0)[:, None]], 1)
-            d_proj[:, 2, 2] = np.where(has_depth, 1.0 / sigma_z, 0.0)
-        norm = np.linalg.norm(residual, axis=1)
-        weight = np.where(norm <= huber, 1.0, huber / np.maximum(norm, 1e-12))
-        weight = weight * (p[:, 2] > 1e-6)
-        rows = residual.shape[1]
-        # ∂p/∂δ = [I | −[p]×]; a row aᵀ times −[p]× is (p × a)ᵀ.
-        jacobian = np.concatenate([d_proj[:, :rows], np.cross(p[:, None, :], d_proj[:, :rows])], axis=2)
+            c = np.where(has_depth, 1.0 / sigma_z, 0.0)
+            residual[:, 2] = (pz - measured) * c
+            jacobian[:, 2, 2], jacobian[:, 2, 3], jacobian[:, 2, 4] = c, py * c, -px * c
+        norm = np.sqrt(np.einsum("nk,nk->n", residual, residual))
+        weight = np.where(norm <= huber, 1.0, huber / np.maximum(norm, 1e-12)) * (pz > 1e-6)
+        flat = jacobian.reshape(n * rows, 6)
         if basis is not None:
-            jacobian = jacobian @ basis  # (N, rows, k): only the allowed motions
-        weighted = jacobian * weight[:, None, None]
-        hessian = np.einsum("nki,nkj->ij", weighted, jacobian)
-        gradient = np.einsum("nki,nk->i", weighted, residual)
+            flat = flat @ basis  # only the allowed motions
+        weighted = flat * np.repeat(weight, rows)[:, None]
+        hessian = weighted.T @ flat
+        gradient = weighted.T @ residual.reshape(-1)
         variance_factor = float(np.sum(weight * norm**2) / max(rows * n - 6, 1))
         system = hessian
         if prior is not None:
@@ -84,7 +93,10 @@ def _gauss_newton(
             prior_gradient = information @ _pose_error(pose, prior_inverse)
             system = hessian + reduced
             gradient = gradient + (prior_gradient if basis is None else basis.T @ prior_gradient)
-        step = -np.linalg.lstsq(system, gradient, rcond=None)[0]
+        try:
+            step = -np.linalg.solve(system + 1e-9 * np.eye(len(system)), gradient)
+        except np.linalg.LinAlgError:
+            break
         if basis is not None:
             step = basis @ step
         update = np.eye(4)
@@ -107,11 +119,18 @@ def refine_pose(
     iterations: int = 6,
     basis: NDArray[np.float64] | None = None,
     depth: tuple[NDArray[np.float64], float] | None = None,
+    prior: tuple[NDArray[np.float64], tuple[float, float]] | None = None,
 ) -> NDArray[np.float64]:
-    """``T_camera_world`` minimising the robust reprojection (and depth) error alone (no prior); ``basis`` and
-    ``depth`` as in :func:`refine_pose_with_prior`."""
+    """``T_camera_world`` minimising the robust reprojection (and depth) error, with ``prior`` = (prior
+    ``T_camera_world``, (metres, radians) per axis) fused unconditionally when given; ``basis`` and ``depth`` as in
+    :func:`refine_pose_with_prior` (which decides whether the prior may be fused)."""
+    fused = None
+    if prior is not None:
+        std = prior[1]
+        information = np.diag([1.0 / std[0] ** 2] * 3 + [1.0 / std[1] ** 2] * 3)
+        fused = (np.linalg.inv(np.asarray(prior[0], np.float64)), information)
     pose, _, _ = _gauss_newton(
-        np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, None, pixel_std, huber_px,
+        np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, fused, pixel_std, huber_px,
         iterations, basis, depth,
     )  # fmt: skip
     return pose

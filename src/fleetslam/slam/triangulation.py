@@ -87,12 +87,16 @@ def match_and_triangulate(
     p0, p1 = start[usable, :2], end[usable, :2]
     mid, half = (p0 + p1) / 2.0, np.linalg.norm(p1 - p0, axis=1) / 2.0
     reach = tolerance_px * float(np.max(scales_b))
-    neighbours = cKDTree(b_px).query_ball_point(mid, half + reach)
-    counts = np.fromiter((len(n) for n in neighbours), np.intp, len(neighbours))
-    if counts.sum() == 0:
+    # Candidate pairs: keypoints of b within the longest half-segment of any midpoint (one sparse query, no Python
+    # loop), then the exact distance to each segment below.
+    pairs = cKDTree(mid).sparse_distance_matrix(
+        cKDTree(b_px), float(half.max()) + reach, output_type="ndarray"
+    )
+    if len(pairs) == 0:
         return EMPTY
-    seg = np.repeat(np.arange(len(usable)), counts)
-    cand_b = np.fromiter((j for n in neighbours for j in n), np.intp, int(counts.sum()))
+    seg, cand_b = pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
+    near_enough = pairs["v"] <= half[seg] + reach
+    seg, cand_b = seg[near_enough], cand_b[near_enough]
     # Distance of b's keypoint to a's segment.
     direction = p1[seg] - p0[seg]
     length2 = np.maximum(np.einsum("ij,ij->i", direction, direction), 1e-12)
