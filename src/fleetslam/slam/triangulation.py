@@ -89,9 +89,7 @@ def match_and_triangulate(
     reach = tolerance_px * float(np.max(scales_b))
     # Candidate pairs: keypoints of b within the longest half-segment of any midpoint (one sparse query, no Python
     # loop), then the exact distance to each segment below.
-    pairs = cKDTree(mid).sparse_distance_matrix(
-        cKDTree(b_px), float(half.max()) + reach, output_type="ndarray"
-    )
+    pairs = cKDTree(mid).sparse_distance_matrix(cKDTree(b_px), float(half.max()) + reach, output_type="ndarray")
     if len(pairs) == 0:
         return EMPTY
     seg, cand_b = pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
