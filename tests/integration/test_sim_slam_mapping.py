@@ -58,8 +58,10 @@ def test_simulated_robot_is_tracked_and_mapped(router_endpoint: str, make_contex
         return bool(np.linalg.norm([b.x - a.x, b.y - a.y, b.z - a.z]) > 0.2)
 
     try:
-        assert wait_until(lambda: len(keyframes) >= 3 and bool(clouds) and moved(), 60.0), (
-            f"keyframes {len(keyframes)}, clouds {len(clouds)}, poses {len(poses)}"
+        # The graph follows the keyframes within its publication period (1 s) with the latest state.
+        graph_grew = lambda: bool(graphs) and len(graphs[-1].poses) >= 2  # noqa: E731
+        assert wait_until(lambda: len(keyframes) >= 3 and bool(clouds) and moved() and graph_grew(), 60.0), (
+            f"keyframes {len(keyframes)}, clouds {len(clouds)}, poses {len(poses)}, graphs {len(graphs)}"
         )
     finally:
         sim.terminate()

@@ -21,6 +21,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="sim: simulated robots with SLAM and maps; synthetic: agents exchanging graphs only",
     )  # fmt: skip
     parser.add_argument("--resolution", default="320x240", help="simulated camera resolution WxH")
+    parser.add_argument("--camera-hz", type=float, default=10.0, help="simulated camera rate (simulated time)")
+    parser.add_argument(
+        "--route", default="loop", help="autopilot route every robot patrols, lap after lap (fleetslam robot routes)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -29,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("results") / time.strftime("demo-%Y%m%d-%H%M%S")
     result = run_demo(
         robots=robots, duration_s=args.duration, out_dir=out, port=args.port, router_port=args.router_port,
-        headless=args.headless, mode=args.mode, resolution=args.resolution,
+        headless=args.headless, mode=args.mode, resolution=args.resolution, camera_hz=args.camera_hz,
+        route=args.route,
     )  # fmt: skip
     for robot, value in sorted(result.ate.items()):
         print(f"ATE {robot}: {value:.3f} m (SLAM vs ground truth, aligned)")

@@ -115,16 +115,18 @@ def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, An
 
 
 def _sim_processes(
-    robots: list[str], router: str, out_dir: Path, resolution: str
+    robots: list[str], router: str, out_dir: Path, resolution: str, camera_hz: float = 10.0, route: str = "loop"
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
     env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
     processes = []
     for robot in robots:
         agent_env = {**env, "FLEETSLAM_AGENT": robot}
         peers = "[" + ",".join(r for r in robots if r != robot) + "]"
+        # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend.
         processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
                                      argv=_fleetslam("slam", "node", "--set", f"peers={peers}"),
-                                     environment=agent_env, restart=RestartPolicy()))  # fmt: skip
+                                     environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
+                                     restart=RestartPolicy()))  # fmt: skip
         processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
                                      environment=agent_env, restart=RestartPolicy()))  # fmt: skip
     fleet_config = out_dir / "fleet_map.yaml"
@@ -136,8 +138,9 @@ def _sim_processes(
                                  argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
                                  environment=env, restart=RestartPolicy()))  # fmt: skip
     processes.append(ProcessSpec(label="sim", host="localhost",
-                                 argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz", "5",
-                                                 "--resolution", resolution, "--autopilot", "loop"),
+                                 argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz",
+                                                 f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
+                                                 "--laps"),
                                  environment={**env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
                                  restart=RestartPolicy()))  # fmt: skip
     return processes, extrinsics
@@ -210,6 +213,8 @@ def run_demo(
     headless: bool = False,
     mode: str = "sim",
     resolution: str = "320x240",
+    camera_hz: float = 10.0,
+    route: str = "loop",
     output: TextIO = sys.stdout,
     stop: threading.Event | None = None,
 ) -> DemoResult:
@@ -220,7 +225,7 @@ def run_demo(
     endpoint = f"tcp/127.0.0.1:{router_port}"
     if mode == "sim":
         print("[demo] preparing the simulated plant", file=output, flush=True)
-        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution)
+        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route)
     else:
         processes, extrinsics = _agent_processes(robots, endpoint), {}
     with Router([endpoint]):

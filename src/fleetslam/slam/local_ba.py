@@ -181,7 +181,11 @@ def _adjoint(pose: NDArray[np.float64]) -> NDArray[np.float64]:
 def _prepare_priors(problem: BundleProblem) -> list[tuple[PosePrior, NDArray[np.float64], NDArray[np.float64]]]:
     """Per prior: itself, the square root of its information (information = rootᵀ·root) and M⁻¹."""
     return [
-        (prior, np.linalg.cholesky(prior.information).T, np.asarray(np.linalg.inv(prior.measured), np.float64))
+        (
+            prior,
+            np.asarray(np.linalg.cholesky(prior.information).T, np.float64),
+            np.asarray(np.linalg.inv(prior.measured), np.float64),
+        )
         for prior in problem.priors
     ]
 

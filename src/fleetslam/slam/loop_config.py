@@ -96,9 +96,11 @@ class MemoryConfig(ConfigModel):
     """Similarity of word sets above which a new location is merged with the previous one (weight update,
     Mem/RehearsalSimilarity)."""
 
-    max_wm_size: int = Field(0, ge=0)
+    max_wm_size: int = Field(300, ge=0)
     """Maximum number of locations in the working memory before transfers to LTM (0 = unlimited;
-    RTAB-Map Rtabmap/MemoryThr)."""
+    RTAB-Map Rtabmap/MemoryThr). Bounds the cost of every keyframe's word search and loop hypothesis (they grow
+    with the working memory; unbounded, a robot that patrols for minutes slows down until it drops most frames):
+    300 keyframes are a couple of minutes of driving, more than a lap of the demo's routes."""
 
     time_threshold_ms: float = Field(0.0, ge=0.0)
     """Processing-time budget per keyframe in milliseconds; above it, locations are transferred from WM to LTM

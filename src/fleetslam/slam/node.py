@@ -59,6 +59,8 @@ class SlamNodeConfig(ConfigModel):
     """Quality of keyframe colour images."""
     max_pending: int = Field(default=4, ge=1)
     """Unpaired colour (and depth) images kept while waiting for their partner."""
+    graph_period: float = Field(default=1.0, ge=0.0)
+    """Between loop closures, ``graph`` and ``path`` are published at most this often (s); 0: every keyframe."""
     odom_wait: float = Field(default=0.1, ge=0.0)
     """How long (s) a frame may wait for the wheel odometry to reach its stamp before it is processed without
     the newest wheel pose (odometry and images travel separately)."""
@@ -112,6 +114,22 @@ def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
     return pose if np.isfinite(pose).all() else None
 
 
+def _pose_msgs(poses: list[np.ndarray]) -> list[Any]:
+    """geometry_msgs/Pose of many 4×4 poses (the rotations converted in one batch)."""
+    if not poses:
+        return []
+    from scipy.spatial.transform import Rotation
+
+    stacked = np.stack(poses)
+    quats = Rotation.from_matrix(stacked[:, :3, :3]).as_quat()  # x, y, z, w
+    pose, point, quaternion = (get_type(f"geometry_msgs/msg/{t}") for t in ("Pose", "Point", "Quaternion"))
+    return [
+        pose(position=point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+             orientation=quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+        for t, q in zip(stacked[:, :3, 3], quats, strict=True)
+    ]  # fmt: skip
+
+
 def _pose_dict(pose: np.ndarray) -> dict[str, Any]:
     t, q = pose_to_quat(pose)
     return {
@@ -138,6 +156,8 @@ class SlamNode:
         self._latency_ms: list[float] = []
         self._lock = threading.Lock()
         """Held while the pipeline is used (the worker's frames, the services)."""
+        self._graph_published = 0.0
+        self._graph_changed = False
         self.agent = node.namespace.strip("/")
         self.wheel_poses = PoseBuffer(horizon=5.0, tolerance=self.config.odom_tolerance)
         self.base_camera: np.ndarray | None = None
@@ -299,6 +319,8 @@ class SlamNode:
         self.publish_map_to_odom(stamp_ns, step, prior)
         if step.keyframe_id is not None:
             self.publish_keyframe(stamp_ns, step, frame)
+            self._graph_changed = True
+        if self._graph_changed:
             self.publish_graph(stamp_ns, optimized=step.loop_closed)
         self._count(step)
         self.publish_diagnostics(stamp_ns, step, step_ms, (time.monotonic() - pair.completed) * 1e3)
@@ -403,30 +425,40 @@ class SlamNode:
         self.keyframe_pub.publish(msg)
 
     def publish_graph(self, stamp_ns: int, *, optimized: bool) -> None:
+        """The whole keyframe graph on ``graph`` and the keyframe path on ``path``: after a loop closure (every pose
+        moved), else at most every ``graph_period`` (new keyframes reach their readers on ``keyframes`` at once;
+        a graph of hundreds of keyframes is not worth resending three times a second)."""
         if self.pipeline is None:
             return
+        now = time.monotonic()
+        if not optimized and now - self._graph_published < self.config.graph_period:
+            return  # published by a later frame (the change is remembered)
+        self._graph_published = now
+        self._graph_changed = False
         poses = self.pipeline.keyframe_poses()
         ids = sorted(poses)
-        constraints = []
-        for c in self.pipeline.graph.constraints():
-            constraints.append(
-                {"from_id": int(c.a), "to_id": int(c.b), "from_agent": self.agent, "to_agent": self.agent,
-                 "kind": 1 if c.kind == "loop" else 0, "relative": _pose_dict(c.transform),
-                 "information": np.asarray(c.information, np.float64).reshape(-1).tolist()}
-            )  # fmt: skip
-        graph = message_from_dict(
-            "fleetslam_msgs/msg/KeyframeGraph",
-            {"agent": self.agent, "keyframe_ids": ids, "poses": [_pose_dict(poses[i]) for i in ids],
-             "constraints": constraints, "optimized": optimized},
+        constraints = self.pipeline.graph.constraints()
+        pose_msgs = _pose_msgs([poses[i] for i in ids])
+        relative_msgs = _pose_msgs([c.transform for c in constraints])
+        constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
+        stamp = header(self.config.map_frame, stamp_ns)
+        graph = get_type("fleetslam_msgs/msg/KeyframeGraph")(
+            header=stamp, agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32), poses=pose_msgs,
+            stamps=[stamp_from_ns(round(self.pipeline.keyframe_stamps[i] * 1e9)) for i in ids],
+            constraints=[
+                constraint_type(
+                    from_id=int(c.a), to_id=int(c.b), from_agent=self.agent, to_agent=self.agent,
+                    kind=1 if c.kind == "loop" else 0, relative=relative,
+                    information=np.asarray(c.information, np.float64).reshape(36),
+                )
+                for c, relative in zip(constraints, relative_msgs, strict=True)
+            ],
+            optimized=optimized,
         )  # fmt: skip
-        graph.header = header(self.config.map_frame, stamp_ns)
-        graph.stamps = [stamp_from_ns(round(self.pipeline.keyframe_stamps[i] * 1e9)) for i in ids]
         self.graph_pub.publish(graph)
-        path = message_from_dict("nav_msgs/msg/Path", {"poses": [{"pose": _pose_dict(poses[i])} for i in ids]})
-        path.header = graph.header
-        for pose_stamped in path.poses:
-            pose_stamped.header = graph.header
-        self.path_pub.publish(path)
+        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
+        stamped = [pose_stamped(header=stamp, pose=p) for p in pose_msgs]
+        self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=stamp, poses=stamped))
 
     # -- services -----------------------------------------------------------------------------------------------
     def on_save_map(self, request: Any) -> Any:
