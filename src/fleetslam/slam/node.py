@@ -61,7 +61,7 @@ class SlamNodeConfig(ConfigModel):
     """Unpaired colour (and depth) images kept while waiting for their partner."""
     graph_period: float = Field(default=1.0, ge=0.0)
     """Between loop closures, ``graph`` and ``path`` are published at most this often (s); 0: every keyframe."""
-    odom_wait: float = Field(default=0.1, ge=0.0)
+    odom_wait: float = Field(default=0.5, ge=0.0)
     """How long (s) a frame may wait for the wheel odometry to reach its stamp before it is processed without
     the newest wheel pose (odometry and images travel separately)."""
     map_db: str = "map.db"
@@ -185,7 +185,9 @@ class SlamNode:
         ]
         node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
         if self.config.use_wheel_odometry:
-            node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=50))
+            # Deep enough for several seconds of 50 Hz odometry: a starved process must not lose the wheel poses
+            # it needs as priors for the frames it is still working through.
+            node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=500))
             node.create_subscription(
                 "tf2_msgs/msg/TFMessage", "tf_static", self.on_tf_static,
                 QoSProfile(durability="transient_local", depth=1),
