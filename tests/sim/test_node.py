@@ -70,7 +70,7 @@ def test_sim_node_publishes_sensors_and_obeys_cmd_vel(make_context: Callable[...
     assert 0.0 < sim.real_time_factor < 1.05  # paced: never faster than the requested rate
     static = received["tf_static"][-1].transforms[0]
     assert (static.header.frame_id, static.child_frame_id) == ("base_link", "camera_optical_frame")
-    assert static.transform.translation.z == pytest.approx(0.5, abs=0.01)
+    assert static.transform.translation.z == pytest.approx(0.5, abs=0.01)  # the model's 0.5 m mount (exact here)
 
 
 def test_operator_takes_over_from_the_autopilot(make_context: Callable[..., Context]) -> None:

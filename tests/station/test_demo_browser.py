@@ -27,7 +27,7 @@ from .conftest import save_screenshot
 pytest.importorskip("mujoco")
 
 MAX_W = 0.8  # the console's default max ω slider (rad/s); D asks for -MAX_W
-STILL = 0.05  # m/s and rad/s: standing
+STILL = 0.05  # m/s and rad/s: standing (a braked robot shows < 5 mm/s, test_sim_tracking)
 WATCHDOG_STOP = 1.0  # s: the robot's command timeout (0.5 s) plus braking
 AUTOPILOT_RESUMES = 3.0  # s after the last command the robot received
 
@@ -80,6 +80,7 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
                 return max(s.t for s in truth if s.published <= wall)
 
             def turning_right_since(t0: float) -> bool:
+                # 60 % of the asked ω: past the 3 rad/s² ramp, clear of the contact chatter (σ ≈ 0.015 rad/s)
                 return any(s.t > t0 and s.w < -0.6 * MAX_W and abs(s.v) < 0.1 for s in truth[-500:])
 
             def turning_report(t0: float, wall: float) -> str:
@@ -123,6 +124,7 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
             page.keyboard.up("d")
             page.keyboard.up("Space")
             released = sim_time_at(time.time())
+            # the console's zero within two 50 ms ticks, then braking from 0.8 rad/s at 4 rad/s² takes 0.2 s
             assert_stands_after(released, 0.6, "after the deadman was released")
 
             turn_right_in_place("again")
