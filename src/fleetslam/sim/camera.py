@@ -74,7 +74,9 @@ class KinectModel:
 
     - range limits: outside [min_depth, max_depth] → invalid;
     - axial noise with total σ(z) = k·z², of which disparity quantisation (``disparity_step`` pixels with
-      focal ``disparity_focal`` and ``baseline``) contributes step²/12 in disparity space;
+      focal ``disparity_focal`` and ``baseline``) contributes step²/12 in disparity space — on average over where
+      the true disparity falls between two levels; a surface whose disparity sits exactly on a level gets about
+      6 % less (the quantisation's share is then smaller than step²/12);
     - invalid at grazing incidence (normal vs ray > ``max_incidence_deg``, normals from depth gradients)
       and on both sides of depth discontinuities larger than ``edge_jump``·z.
     """
