@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -11,7 +12,7 @@ from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import message_from_dict
+from fleetslam.middleware.typesys import get_type, message_from_dict
 
 from ..support import wait_until
 
@@ -39,6 +40,32 @@ def test_fleet_node_fuses_agents_in_the_fleet_frame(make_context: Callable[..., 
         if not clouds:
             return False
         xyz = np.frombuffer(bytes(clouds[-1].data), np.float32).reshape(-1, 3)
+        # float32 centres of the 0.1 m wall voxels; a neighbouring voxel is 0.1 off
         return bool((np.abs(xyz[:, 0] - 2.05) < 0.06).any() and (np.abs(xyz[:, 0] - 7.95) < 0.06).any())
 
-    assert wait_until(both_walls, 10.0)
+    assert wait_until(both_walls, 10.0)  # 5 Hz once both latched maps arrived; 10 s covers discovery under load
+
+
+def test_fleet_node_fuses_without_subscribers_and_serves_late_ones(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    fleet_node = Node("fleet_map", context=make_context())
+    config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]},
+                            agents=["c3po", "r2d2"], publish_rate=5.0)  # fmt: skip
+    fleet = FleetMapNode(fleet_node, config)
+    latched = QoSProfile(durability="transient_local", depth=1)
+    for agent in ("c3po", "r2d2"):
+        node = Node("mapping", context=make_context(agent))
+        node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched).publish(_agent_map())
+    assert wait_until(lambda: fleet.fleet.agents() == ["c3po", "r2d2"], 10.0)
+    assert fleet._published == {"occupied": 0, "octomap": 0}  # nobody asked: nothing built or sent
+    save = fleet_node.create_client("fleetslam_msgs/srv/SaveMap", "/fleet/map/save")
+    response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path=str(tmp_path / "fleet.bt")), timeout=10)
+    assert response.success, response.message
+    saved = OccupancyOctree.read(tmp_path / "fleet.bt")
+    assert saved.is_occupied([2.05, 0.05, 0.55]) and saved.is_occupied([7.95, 0.05, 0.55])
+    viewer = Node("viewer", context=make_context())
+    octomaps: list[Any] = []
+    viewer.create_subscription("octomap_msgs/msg/Octomap", "/fleet/map/octomap", octomaps.append, latched)
+    assert wait_until(lambda: bool(octomaps), 10.0)
+    assert octomaps[-1].header.frame_id == "fleet" and len(octomaps[-1].data) > 0

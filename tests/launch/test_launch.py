@@ -4,6 +4,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -18,7 +19,9 @@ from fleetslam.launch.description import (
     load_fleet,
     resolve_processes,
 )
-from fleetslam.launch.supervisor import Supervisor
+from fleetslam.launch.supervisor import Supervisor, sample_process
+
+from ..support import wait_until
 
 FLEET = """
 router: {endpoint: "tcp/10.1.2.2:7447", host: base}
@@ -200,3 +203,87 @@ def _gone(pid: int) -> bool:
 
 def test_empty_fleet_is_valid() -> None:
     assert FleetDescription().agents == []
+
+
+TICKS = os.sysconf("SC_CLK_TCK")
+#: A child that uses ``cpu_s`` of CPU time (its own clock: the same amount however loaded the machine is), holds
+#: ``mib`` MiB of written memory, then waits to be stopped.
+_BURNER = """
+import sys, time
+cpu_s, mib = float(sys.argv[1]), int(sys.argv[2])
+held = b"x" * (mib << 20)  # written, so resident
+while time.process_time() < cpu_s:
+    pass
+print("burnt", flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="usage is read from Linux's /proc")
+def test_supervisor_reports_cpu_and_peak_memory_of_its_children() -> None:
+    out = io.StringIO()
+    burner = ProcessSpec(label="c3po/burner", host="localhost", argv=[*_py(_BURNER), "0.6", "120"], environment={},
+                         restart=RestartPolicy())  # fmt: skip
+    idle = ProcessSpec(label="r2d2/idle", host="localhost", argv=_py("import time; time.sleep(60)"), environment={},
+                       restart=RestartPolicy())  # fmt: skip
+    supervisor = Supervisor([burner, idle], output=out, grace_s=1.0)
+    thread = threading.Thread(target=supervisor.run, kwargs={"poll_interval_s": 0.05}, daemon=True)
+    thread.start()
+    try:
+        assert wait_until(lambda: "[c3po/burner] burnt" in out.getvalue(), 30.0), out.getvalue()
+        time.sleep(0.3)
+        usage = {u.label: u for u in supervisor.usage()}
+    finally:
+        supervisor.stop()
+        thread.join(10)
+    hot, cold = usage["c3po/burner"], usage["r2d2/idle"]
+    assert hot.pid is not None and cold.pid is not None and hot.restarts == 0
+    # The loop ran until the process had used 0.6 s (its start included); /proc counts whole clock ticks (1/100 s
+    # on Linux) for user and system time apiece, truncated: up to two ticks fewer. Its sleep costs nothing.
+    assert 0.6 - 2 / TICKS <= hot.cpu_s < 1.0, hot
+    assert hot.wall_s >= hot.cpu_s - 0.05  # one thread cannot use more CPU than time passed
+    assert 0.0 < hot.cpu_percent <= 105.0, hot
+    assert cold.cpu_s < 0.6 and cold.cpu_percent < hot.cpu_percent, (cold, hot)
+    # The burner held 120 MiB of bytes on top of the interpreter (~10 MiB); the sleeper only the interpreter.
+    assert 120 <= hot.peak_rss_mib < 400, hot
+    assert 1 < cold.peak_rss_mib < 100, cold
+    assert hot.as_dict()["label"] == "c3po/burner" and hot.as_dict()["cpu_percent"] == round(hot.cpu_percent, 2)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="usage is read from Linux's /proc")
+def test_supervisor_usage_counts_every_run_of_a_restarted_process() -> None:
+    crash = ProcessSpec(
+        label="c3po/crashy",
+        host="localhost",
+        argv=_py("import sys, time\nwhile time.process_time() < 0.3: pass\ntime.sleep(0.5)\nsys.exit(3)"),
+        environment={},
+        restart=RestartPolicy(initial_backoff_s=0.1, max_restarts=1),
+    )
+    supervisor = Supervisor([crash], output=io.StringIO(), grace_s=1.0)
+    supervisor.run(poll_interval_s=0.02)  # returns once it gave up: two runs
+    (usage,) = supervisor.usage()
+    assert supervisor.status()["c3po/crashy"]["exit_codes"] == [3, 3]
+    # Each run used 0.3 s of CPU (start included) and slept 0.5 s; its final figures are read when it has exited,
+    # before it is reaped, so both runs count in full (less up to two truncated clock ticks each, as above).
+    assert usage.restarts == 1
+    assert 0.6 - 4 / TICKS <= usage.cpu_s < 1.0 and usage.wall_s >= 1.6, usage
+
+
+def test_sample_process_reads_proc_stat_and_status(tmp_path: Path) -> None:
+    """Fields counted after the command name's last ')' (a name may hold spaces and parentheses)."""
+    ticks = TICKS
+    (tmp_path / "42").mkdir()
+    # state ppid pgrp session tty tpgid flags minflt cminflt majflt cmajflt | utime stime cutime cstime | priority
+    # nice num_threads itrealvalue | starttime (proc(5) fields 3-22)
+    fields = ["S", "1", "42", "42", "0", "-1", "4194560", "100", "0", "0", "0",
+              str(3 * ticks), str(ticks), str(ticks // 2), str(ticks // 2),
+              "20", "0", "5", "0", str(100 * ticks)]  # fmt: skip
+    (tmp_path / "42" / "stat").write_text("42 (my (odd) name) " + " ".join(fields) + " 0 0\n")
+    (tmp_path / "42" / "status").write_text("Name:\tx\nVmHWM:\t  204800 kB\nVmRSS:\t  1024 kB\n")
+    (tmp_path / "uptime").write_text("130.00 200.00\n")
+    sample = sample_process(42, proc=tmp_path)
+    assert sample is not None
+    assert sample.cpu_s == pytest.approx(5.0)  # user 3 + system 1 + waited-for children 0.5 + 0.5
+    assert sample.wall_s == pytest.approx(30.0)  # up 130 s, started at 100 s
+    assert sample.peak_rss_mib == pytest.approx(200.0)
+    assert sample_process(43, proc=tmp_path) is None

@@ -80,6 +80,6 @@ def test_two_agents_viewer_stats_and_link_outage() -> None:
     assert sum(r["delivered"] for r in during) == 0, "messages crossed a link that was down"
     # The gap is visible after recovery: lost messages, or a period as long as the outage.
     recovered = [r for r in r2d2 if r["stamp_ns"] > up_at]
-    assert any(r["dropped"] > 0 or r["period_max_ms"] > 2500 for r in recovered), recovered[:3]
+    assert any(r["dropped"] > 0 or r["period_max_ms"] > 2500 for r in recovered), recovered[:3]  # a 4 s outage
     # c3po's graph kept flowing to r2d2 before and after.
     assert any(r["topic"] == "/c3po/graph" and r["node_sub"] == "/r2d2/slam" for r in rows)

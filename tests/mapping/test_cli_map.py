@@ -71,6 +71,7 @@ def test_info_convert_compare(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     reference.readBinary(GEB079.read_bytes())
     assert info["nodes"] == reference.size() and info["leaves"] == reference.getNumLeafNodes()
     assert info["octomap_memory_bytes"] == reference.memoryUsage()
+    # Both are key × resolution in float64 (~1e-15 apart); a key off by one would be 0.1 m off.
     np.testing.assert_allclose(info["bbox_min"], reference.getMetricMin(), atol=1e-5)
     np.testing.assert_allclose(info["bbox_max"], reference.getMetricMax(), atol=1e-5)
     ot = tmp_path / "geb.ot"

@@ -67,3 +67,12 @@ def test_morton_order_is_octomap_child_order() -> None:
     assert morton(top_x)[0] == 1 << 45
     assert morton(top_y)[0] == 2 << 45
     assert morton(all_low)[0] < morton(top_x)[0] < morton(top_y)[0]
+
+
+def test_morton_kernel_matches_morton() -> None:
+    from fleetslam.mapping._prune_kernels import morton_keys, unmorton_keys
+
+    keys = np.random.default_rng(3).integers(0, 1 << 16, (5000, 3)).astype(np.uint16)
+    codes = morton_keys(keys)
+    np.testing.assert_array_equal(codes, morton(keys))
+    np.testing.assert_array_equal(unmorton_keys(codes), keys)

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fleetslam.geometry import T_BODY_OPTICAL, pose_to_quat
-from fleetslam.mapping.node import MappingNode, MappingNodeConfig
+from fleetslam.geometry import T_BODY_OPTICAL, pose_from_planar, pose_to_quat
+from fleetslam.mapping.node import MappingNode, MappingNodeConfig, PublishPacer
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, message_from_dict
@@ -54,7 +54,8 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     assert wait_until(lambda: bool(clouds) and bool(octomaps) and bool(grids), 10.0)
     cloud = clouds[-1]
     xyz = np.frombuffer(bytes(cloud.data), np.float32).reshape(-1, 3)
-    assert len(xyz) > 100 and np.allclose(xyz[:, 0], 2.0 + 0.025, atol=0.03)  # the wall, 2 m ahead
+    # The wall, 2 m ahead: centres of the layer [2.0, 2.05); the layers beside it are 0.05 off.
+    assert len(xyz) > 100 and np.allclose(xyz[:, 0], 2.0 + 0.025, atol=0.03)
     assert octomaps[-1].id == "OcTree" and octomaps[-1].binary and len(octomaps[-1].data) > 0
     assert grids[-1].info.width > 0 and 100 in set(np.asarray(grids[-1].data).tolist())
     save = viewer.create_client("fleetslam_msgs/srv/SaveMap", "/c3po/map/save")
@@ -70,3 +71,76 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     assert reset.wait_for_service(5.0)
     assert reset.call(get_type("std_srvs/srv/Trigger_Request")(), timeout=10).success
     assert wait_until(lambda: clouds[-1].width == 0, 5.0)
+
+
+def _graph(poses: dict[int, np.ndarray]) -> Any:
+    entries = []
+    for pose in poses.values():
+        t, q = pose_to_quat(pose)
+        entries.append({"position": dict(zip("xyz", t.tolist(), strict=True)),
+                        "orientation": dict(zip("xyzw", q.tolist(), strict=True))})  # fmt: skip
+    return message_from_dict(
+        "fleetslam_msgs/msg/KeyframeGraph", {"agent": "c3po", "keyframe_ids": list(poses), "poses": entries}
+    )
+
+
+def test_mapping_node_follows_the_latest_graph_and_builds_only_what_is_subscribed(
+    make_context: Callable[..., Context],
+) -> None:
+    config = MappingNodeConfig(publish_rate=5.0, reintegrate_period=0.5)
+    mapping = MappingNode(Node("mapping", context=make_context("c3po")), config)
+    slam = Node("slam", context=make_context("c3po"))
+    viewer = Node("viewer", context=make_context())
+    clouds: list[Any] = []
+    markers: list[Any] = []
+    viewer.create_subscription("sensor_msgs/msg/PointCloud2", "/c3po/map/occupied", clouds.append, QoSProfile(depth=5))
+    keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
+    camera = T_BODY_OPTICAL.copy()
+    camera[2, 3] = 0.5
+    assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0, 10.0)
+    keyframes.publish(_keyframe(0, camera, 2.0))  # a wall 2 m ahead: x = 2
+    keyframes.publish(_keyframe(1, camera, 2.0))
+
+    def wall_at(x: float) -> bool:
+        if not clouds:
+            return False
+        xyz = np.frombuffer(bytes(clouds[-1].data), np.float32).reshape(-1, 3)
+        return len(xyz) > 100 and bool(np.allclose(xyz[:, 0], x + 0.025, atol=0.03))
+
+    assert wait_until(lambda: wall_at(2.0), 10.0)
+    # Optimised graphs in quick succession: each holds every pose, only the last one counts.
+    for shift in (0.2, 0.35, 0.5):
+        graph.publish(
+            _graph({0: pose_from_planar(shift, 0.0, 0.0) @ camera, 1: pose_from_planar(shift, 0, 0) @ camera})
+        )
+    assert wait_until(lambda: wall_at(2.5), 10.0)  # both keyframes moved: rebuilt where the graph put them
+    assert mapping.mapper.pending == 0
+    # Nobody subscribed to the markers or the grid: never built. A viewer that comes gets the current map.
+    assert mapping._published["markers"] == 0 and mapping._published["grid"] == 0
+    viewer.create_subscription("visualization_msgs/msg/MarkerArray", "/c3po/map/markers", markers.append,
+                               QoSProfile(durability="transient_local", depth=1))  # fmt: skip
+    assert wait_until(lambda: bool(markers), 10.0)
+    cubes = np.array([(p.x, p.y, p.z) for marker in markers[-1].markers for p in marker.points])
+    assert len(cubes) > 100 and np.allclose(cubes[:, 0], 2.525, atol=0.03)
+
+
+def test_publications_are_spaced_by_their_cost() -> None:
+    now = [100.0]
+    pacer = PublishPacer(0.05, clock=lambda: now[0])
+
+    def build(seconds: float, did: bool = True) -> Callable[[], bool]:
+        def work() -> bool:
+            now[0] += seconds
+            return did
+
+        return work
+
+    assert pacer.due()
+    assert pacer.timed(build(0.2))  # 0.2 s of work at 5 %: the next one 4 s after it began
+    now[0] = 103.9
+    assert not pacer.due()
+    now[0] = 104.001
+    assert pacer.due()
+    assert not pacer.timed(build(0.5, did=False))  # nothing published: no wait
+    assert pacer.due()

@@ -11,8 +11,9 @@ import pytest
 from fleetslam.config import load_config
 from fleetslam.errors import ConfigError
 from fleetslam.mapping.config import MappingConfig, make_octree
+from fleetslam.mapping.keys import coords_to_keys, pack
 from fleetslam.mapping.leaves import LeafArrays
-from fleetslam.mapping.octree import OccupancyOctree
+from fleetslam.mapping.octree import OccupancyOctree, _expand_to_finest
 
 DATA = Path(__file__).parents[2] / ".." / "shared" / "data" / "octomap"
 
@@ -100,12 +101,13 @@ def test_merge_adds_log_odds_and_moves_by_transform() -> None:
     b.insert_point_cloud(wall_scan(), np.zeros(3))
     a.merge(b)
     hit = float(np.float32(np.log(0.7 / 0.3)))
+    # float32 log-odds: hit + hit is exact (measured equal); 1e-5 ≈ 80 ulp at 1.7, far below one hit (0.85)
     assert a.log_odds(np.array([1.0, 0.0, 0.0])) == pytest.approx(2 * hit, abs=1e-5)
     moved = OccupancyOctree(0.1)
     shift = np.eye(4)
     shift[:3, 3] = [0.0, 0.0, 3.0]
     moved.merge(b, shift)
-    assert moved.log_odds(np.array([1.0, 0.0, 3.0])) == pytest.approx(hit, abs=1e-6)
+    assert moved.log_odds(np.array([1.0, 0.0, 3.0])) == pytest.approx(hit, abs=1e-6)  # moved, not summed: exact
     assert moved.log_odds(np.array([1.0, 0.0, 0.0])) is None
     with pytest.raises(ValueError):
         moved.merge(OccupancyOctree(0.2))
@@ -173,3 +175,83 @@ def test_max_likelihood_in_place_and_changed_keys() -> None:
     assert set(np.unique(tree.leaves().log_odds)) <= {tree.clamp_min_log, tree.clamp_max_log}
     assert tree.num_nodes() <= before
     assert np.allclose(tree.metric_min(), tree.metric_bounds()[0])
+
+
+def _scan(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A scan of a room's walls (x = ±2, y = ±2) from a random origin near its centre."""
+    rng = np.random.default_rng(seed)
+    origin = np.array([*rng.uniform(-0.5, 0.5, 2), 0.5])
+    angles = rng.uniform(0, 2 * np.pi, 600)
+    heights = rng.uniform(0.0, 1.2, 600)
+    direction = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    # Distance to the square's boundary along each direction.
+    t = np.min(np.where(np.abs(direction) > 1e-9, (2.0 - np.sign(direction) * origin[:2]) / np.abs(direction), 1e9),
+               axis=1)  # fmt: skip
+    points = np.column_stack([origin[:2] + direction * t[:, None], heights]).astype(np.float32)
+    return points, origin
+
+
+def _same_voxels(a: OccupancyOctree, b: OccupancyOctree) -> None:
+    """The same finest voxels known, with the same values up to float32 rounding (sums taken in another order:
+    then the canonical pruning, which needs equal values, may differ)."""
+    keys_a, values_a = _expand_to_finest(a.leaves())
+    keys_b, values_b = _expand_to_finest(b.leaves())
+    order_a, order_b = np.lexsort(keys_a.T), np.lexsort(keys_b.T)
+    np.testing.assert_array_equal(keys_a[order_a], keys_b[order_b])
+    np.testing.assert_allclose(values_a[order_a], values_b[order_b], atol=1e-5)
+
+
+def test_computed_updates_applied_are_an_insertion_and_forgetting_makes_voxels_unknown() -> None:
+    scans = [_scan(seed) for seed in range(3)]
+    tree, reference = OccupancyOctree(0.1, track_changes=False), OccupancyOctree(0.1)
+    seen = []
+    for points, origin in scans:
+        free, occupied = tree.compute_update(points, origin)
+        assert len(np.intersect1d(free, occupied)) == 0  # occupied wins
+        seen.append(np.concatenate([free, occupied]))
+        tree.apply_update(free, occupied)
+        reference.insert_point_cloud(points, origin)
+    _same_voxels(tree, reference)
+    np.testing.assert_array_equal(tree.voxel_log_odds(seen[0]), reference.voxel_log_odds(seen[0]))
+    only_last = np.setdiff1d(seen[2], np.concatenate(seen[:2]))
+    assert tree.forget(only_last) == len(only_last) > 0
+    assert np.isnan(tree.voxel_log_odds(only_last)).all()
+    assert not np.isnan(tree.voxel_log_odds(seen[0])).any()
+    assert tree.pop_changed_keys().shape == (0, 3)  # not tracked
+
+
+def test_assign_sets_clamped_values_and_nan_forgets() -> None:
+    tree = OccupancyOctree(0.1)
+    tree.insert_point_cloud(wall_scan(), np.zeros(3))
+    tree.pop_changed_keys()
+    centres = np.array([[3.05, 0.05, 0.05], [3.15, 0.05, 0.05], [3.25, 0.05, 0.05]])  # nobody saw them
+    keys, _ = coords_to_keys(centres, 0.1)
+    packed = pack(keys)
+    tree.assign(packed, np.array([10.0, -0.5, np.nan]))
+    assert tree.log_odds(centres[0]) == pytest.approx(float(tree.clamp_max_log))  # clamped
+    assert tree.log_odds(centres[1]) == pytest.approx(-0.5)
+    assert tree.log_odds(centres[2]) is None
+    assert len(tree.pop_changed_keys()) == 2  # the unknown one stayed unknown
+    tree.assign(packed[1:2], np.array([np.nan]))
+    assert tree.log_odds(centres[1]) is None
+    np.testing.assert_array_equal(tree.pop_changed_keys(), keys[1:2])
+
+
+def test_forget_splits_a_pruned_leaf() -> None:
+    tree = OccupancyOctree(0.1)
+    for _ in range(6):  # saturate a block of free voxels so that it prunes
+        tree.insert_point_cloud(wall_scan(x=1.6, step=0.01), np.zeros(3))
+    tree.prune()
+    leaves = tree.leaves()
+    coarse = np.flatnonzero(leaves.depths < 16)
+    assert len(coarse) > 0
+    i = int(coarse[0])
+    key = leaves.keys[i].astype(np.uint64)
+    packed = np.array([(int(key[0]) << 32) | (int(key[1]) << 16) | int(key[2])], np.uint64)
+    value = float(leaves.log_odds[i])
+    assert tree.forget(packed) == 1
+    centre = (leaves.keys[i].astype(np.float64) - 32768 + 0.5) * 0.1
+    assert tree.log_odds(centre) is None  # the voxel is unknown again
+    assert tree.log_odds(centre + np.array([0.1, 0.0, 0.0])) == pytest.approx(
+        value
+    )  # its siblings keep the leaf's value

@@ -88,7 +88,7 @@ def test_cast_ray_matches_octomap() -> None:
             got = ours.cast_ray(origin, direction, max_range=max_range, ignore_unknown=ignore_unknown)
             if hit:
                 hits += 1
-                assert got is not None and np.allclose(got, end, atol=1e-6)
+                assert got is not None and np.allclose(got, end, atol=1e-6)  # both: float64 voxel centres
             else:
                 assert got is None
     assert hits > 20

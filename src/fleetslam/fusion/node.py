@@ -2,13 +2,16 @@
 
 Agents are found in the graph (any `/<agent>/map/octomap` publisher) or listed in the parameters. An agent's map
 frame is placed in the fleet frame by its known start pose (``start_poses``); agents without one are placed at the
-fleet origin until inter-agent alignment gives a transform. Publishes ``/fleet/map/occupied`` (PointCloud2) and
-``/fleet/map/octomap`` when an agent's map changed; service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
+fleet origin until inter-agent alignment gives a transform. At ``publish_rate`` it takes each agent's latest map
+(the maps that came in between are skipped), fuses what changed into the fleet map, and publishes
+``/fleet/map/occupied`` (PointCloud2) and ``/fleet/map/octomap`` if the fleet map changed — each only while someone
+subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
 """
 
 from __future__ import annotations
 
 import logging
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +21,10 @@ from pydantic import Field
 from fleetslam.config import ConfigModel
 from fleetslam.fusion.fleet_map import FleetMap
 from fleetslam.geometry import pose_from_xyz_rpy
-from fleetslam.mapping.node import pointcloud2_msg
+from fleetslam.mapping.node import PublishPacer, pointcloud2_msg
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
-from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, message_from_dict
+from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,9 @@ class FleetMapConfig(ConfigModel):
     """Agents to fuse; empty: every agent publishing `map/octomap`."""
     publish_rate: float = Field(default=0.5, gt=0)
     """How often a changed fused map is published (Hz)."""
+    max_publish_load: float = Field(default=0.03, gt=0, le=1)
+    """Largest share of one core that building the published messages may take: a publication that took t s is
+    followed by the next one no sooner than t / max_publish_load s later."""
     frame_id: str = "fleet"
     """Frame of the fused map."""
     save_path: str = "fleet.bt"
@@ -54,7 +59,11 @@ class FleetMapNode:
         for agent, pose in self.config.start_poses.items():
             self.fleet.set_transform(agent, pose_from_xyz_rpy(*pose))
         self._subscribed: set[str] = set()
-        self._dirty = False
+        self._latest: dict[str, bytes] = {}
+        """Per agent, the latest map message (CDR) not fused yet."""
+        self._version = 0
+        self._published = {"occupied": 0, "octomap": 0}
+        self._pacer = PublishPacer(self.config.max_publish_load)
         latched = QoSProfile(durability="transient_local", depth=1)
         self.cloud_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "/fleet/map/occupied", latched)
         self.octomap_pub = node.create_publisher("octomap_msgs/msg/Octomap", "/fleet/map/octomap", latched)
@@ -71,8 +80,9 @@ class FleetMapNode:
         self.node.create_subscription(
             "octomap_msgs/msg/Octomap",
             f"/{agent}/map/octomap",
-            lambda msg: self.on_agent_map(agent, msg),
+            partial(self.on_agent_map, agent),
             QoSProfile(durability="transient_local", depth=1),
+            raw=True,
         )
 
     def _discover(self) -> None:
@@ -83,39 +93,57 @@ class FleetMapNode:
             if len(parts) == 3 and parts[1:] == ["map", "octomap"] and parts[0] != "fleet":
                 self._subscribe(parts[0])
 
-    def on_agent_map(self, agent: str, msg: Any) -> None:
-        if abs(msg.resolution - self.config.resolution) > 1e-9:
-            log.warning("%s: map resolution %g differs from the fleet's %g; ignored", agent, msg.resolution,
-                        self.config.resolution)  # fmt: skip
-            return
-        template = OccupancyOctree(self.config.resolution)
-        leaves = leaves_from_octomap_message(
-            bool(msg.binary), msg.id, np.asarray(msg.data),
-            clamp_min_log_odds=float(template.clamp_min_log), clamp_max_log_odds=float(template.clamp_max_log),
-        )  # fmt: skip
-        self.fleet.update_agent(agent, OccupancyOctree.from_leaves(self.config.resolution, leaves))
-        self._dirty = True
+    def on_agent_map(self, agent: str, data: bytes) -> None:
+        """Keep an agent's latest map; it is decoded and fused at the next tick."""
+        self._latest[agent] = data
+
+    def fuse_pending(self) -> None:
+        """Fuse the agents' latest maps into the fleet map (only what changed in them)."""
+        pending, self._latest = self._latest, {}
+        template = self.fleet.fused()
+        for agent, data in sorted(pending.items()):
+            msg = deserialize(data, "octomap_msgs/msg/Octomap")
+            if abs(msg.resolution - self.config.resolution) > 1e-9:
+                log.warning("%s: map resolution %g differs from the fleet's %g; ignored", agent, msg.resolution,
+                            self.config.resolution)  # fmt: skip
+                continue
+            leaves = leaves_from_octomap_message(
+                bool(msg.binary), msg.id, np.asarray(msg.data),
+                clamp_min_log_odds=float(template.clamp_min_log), clamp_max_log_odds=float(template.clamp_max_log),
+            )  # fmt: skip
+            if self.fleet.update_agent_leaves(agent, leaves):
+                self._version += 1
 
     def on_timer(self) -> None:
-        if not self._dirty:
-            return
-        self._dirty = False
-        self.publish()
+        self.fuse_pending()
+        if self._pacer.due():
+            self._pacer.timed(self.publish)
 
-    def publish(self) -> None:
+    def publish(self) -> bool:
+        """The fused map to whoever subscribes, if it changed since it was last published to them; whether it
+        was published."""
         fused = self.fleet.fused()
         stamp = header(self.config.frame_id, self.node.now_ns())
-        centres, _ = fused.occupied_centers()
-        self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
-        octomap = message_from_dict(
-            "octomap_msgs/msg/Octomap", octomap_message_fields(fused.resolution, fused.leaves())
-        )
-        octomap.header = stamp
-        self.octomap_pub.publish(octomap)
+        published = False
+        if self._published["occupied"] != self._version and self.cloud_pub.matched_subscriptions:
+            centres, _ = fused.occupied_centers()
+            self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
+            self._published["occupied"] = self._version
+            published = True
+        if self._published["octomap"] != self._version and self.octomap_pub.matched_subscriptions:
+            octomap = message_from_dict(
+                "octomap_msgs/msg/Octomap", octomap_message_fields(fused.resolution, fused.leaves())
+            )
+            octomap.header = stamp
+            self.octomap_pub.publish(octomap)
+            self._published["octomap"] = self._version
+            published = True
+        return published
 
     def on_save(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
         path = Path(request.path or self.config.save_path)
+        self.fuse_pending()
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             written = self.fleet.fused().write_binary(path)

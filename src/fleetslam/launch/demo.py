@@ -5,8 +5,9 @@ SLAM node and a mapping node (its own processes, its own namespace), a fleet map
 from their known start poses, and the console. ``mode="synthetic"``: agents that only exchange keyframe graphs
 (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
-truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``report.md``/``report.html``
-and plots.
+truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``processes.json`` (CPU and peak
+memory of every process over the run), ``report.md``/``report.html`` (with each robot's SLAM figures from its
+latest ``slam/diagnostics``) and plots.
 """
 
 from __future__ import annotations
@@ -14,17 +15,22 @@ from __future__ import annotations
 import json
 import logging
 import os
+import struct
 import sys
 import threading
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+from numpy.typing import NDArray
 
+from fleetslam.geometry import quat_to_matrix
 from fleetslam.launch.description import ProcessSpec, RestartPolicy
-from fleetslam.launch.supervisor import Supervisor
+from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
 from fleetslam.middleware import Context, Node, QoSProfile, Router
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
@@ -48,6 +54,10 @@ class DemoResult:
     """ATE RMSE (m) per robot, SLAM against ground truth."""
     plots: list[Path | None] = field(default_factory=list)
     """Extra figures for the report."""
+    processes: list[ProcessUsage] = field(default_factory=list)
+    """CPU and peak memory of every process over the run, the demo's own first."""
+    slam: dict[str, dict[str, str] | None] = field(default_factory=dict)
+    """Per robot, the values of its latest SLAM diagnostics (None: it never published any)."""
 
     def per_agent(self) -> dict[str, dict[str, float]]:
         totals: dict[str, dict[str, float]] = {}
@@ -114,6 +124,11 @@ def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, An
     return poses, extrinsics
 
 
+#: The map nodes' numba kernels on one thread: with seven processes on two cores, a parallel region waits for a
+#: thread that another process holds (a 2.5 ms scan took 5-50 ms), and OpenMP's idle threads spin.
+_ONE_NUMBA_THREAD = {"NUMBA_NUM_THREADS": "1"}
+
+
 def _sim_processes(
     robots: list[str], router: str, out_dir: Path, resolution: str, camera_hz: float = 10.0, route: str = "loop"
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
@@ -128,7 +143,8 @@ def _sim_processes(
                                      environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
                                      restart=RestartPolicy()))  # fmt: skip
         processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
-                                     environment=agent_env, restart=RestartPolicy()))  # fmt: skip
+                                     environment={**agent_env, **_ONE_NUMBA_THREAD},
+                                     restart=RestartPolicy()))  # fmt: skip
     fleet_config = out_dir / "fleet_map.yaml"
     import yaml
 
@@ -136,7 +152,7 @@ def _sim_processes(
     fleet_config.write_text(yaml.safe_dump({"start_poses": poses, "agents": robots}))
     processes.append(ProcessSpec(label="fleet_map", host="localhost",
                                  argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
-                                 environment=env, restart=RestartPolicy()))  # fmt: skip
+                                 environment={**env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy()))  # fmt: skip
     processes.append(ProcessSpec(label="sim", host="localhost",
                                  argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz",
                                                  f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
@@ -146,61 +162,154 @@ def _sim_processes(
     return processes, extrinsics
 
 
+_STAMP = struct.Struct("<iI")
+_LENGTH = struct.Struct("<I")
+_POSE = struct.Struct("<7d")
+
+
+def odometry_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
+    """Stamp (s) and pose (x, y, z, qx, qy, qz, qw) of a nav_msgs/Odometry in CDR, read where CDR puts them.
+
+    The monitor keeps the ground truth at the physics rate; a full decode (every covariance, every nested message)
+    costs some 70 µs, this about 2. Little-endian CDR (what every node sends) is read directly, anything else
+    decoded in full. Offsets count from the end of the 4-byte encapsulation header, aligned to each field's size.
+    """
+    if len(data) < 16 or data[1] != 1:
+        return _decoded_stamp_pose(data)
+    sec, nanosec = _STAMP.unpack_from(data, 4)
+    offset = 8  # header.frame_id: length (with its NUL), characters
+    offset += 4 + _LENGTH.unpack_from(data, 4 + offset)[0]
+    offset = (offset + 3) & ~3  # child_frame_id
+    offset += 4 + _LENGTH.unpack_from(data, 4 + offset)[0]
+    offset = (offset + 7) & ~7  # pose.pose: position, orientation (float64)
+    if 4 + offset + _POSE.size > len(data):
+        return _decoded_stamp_pose(data)
+    return sec + nanosec * 1e-9, np.array(_POSE.unpack_from(data, 4 + offset))
+
+
+def _decoded_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
+    from fleetslam.middleware.typesys import deserialize, ns_from_stamp
+
+    msg = deserialize(data, "nav_msgs/msg/Odometry")
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    return ns_from_stamp(msg.header.stamp) / 1e9, np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w])
+
+
+class _OdometryTrack:
+    """Stamps and poses of one nav_msgs/Odometry topic, as compact arrays."""
+
+    def __init__(self) -> None:
+        self._stamps: list[float] = []
+        self._poses: list[NDArray[np.float64]] = []
+
+    def add(self, data: bytes) -> None:
+        stamp, pose = odometry_stamp_pose(data)
+        self._stamps.append(stamp)
+        self._poses.append(pose)
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def samples(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Stamps (s, arrival order) and 4×4 poses."""
+        poses = np.tile(np.eye(4), (len(self._poses), 1, 1))
+        if self._poses:
+            xyzq = np.stack(self._poses)
+            poses[:, :3, :3] = quat_to_matrix(xyzq[:, 3:])
+            poses[:, :3, 3] = xyzq[:, :3]
+        return np.array(self._stamps), poses
+
+
 class _Monitor:
-    """The demo's own node: statistics, trajectories and the recording of the key topics."""
+    """The demo's own node: statistics, trajectories, each robot's latest SLAM diagnostics and the recording of
+    the key topics.
+
+    Built to stay light: one raw subscription per topic; the bytes are recorded as received, only the stamp and pose
+    of the odometry are read (:func:`odometry_stamp_pose`), and only the latest diagnostics message is kept, decoded
+    when asked for.
+    """
 
     def __init__(self, ctx: Context, robots: list[str], recording: Path | None) -> None:
         self.node = Node("demo_monitor", context=ctx, statistics_period_s=0)
         self.table = StatsTable(stale_s=1e9)
         self.history: list[dict[str, Any]] = []
-        self.trajectories: dict[str, list[tuple[float, Any]]] = {
-            f"{r}/{k}": [] for r in robots for k in ("slam", "truth")
+        self.tracks: dict[str, _OdometryTrack] = {
+            f"{r}/{k}": _OdometryTrack() for r in robots for k in ("slam", "truth")
         }
+        self._diagnostics: dict[str, bytes] = {}
         self.lock = threading.Lock()
         self.writer = BagWriter(recording) if recording is not None else None
         self.node.create_subscription(
-            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000)
+            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000), raw=True
         )
+        odometry = "nav_msgs/msg/Odometry"
         for robot in robots:
-            for kind, topic in (("slam", "slam/odom"), ("truth", "ground_truth/odom")):
-                key = f"{robot}/{kind}"
-                self.node.create_subscription(
-                    "nav_msgs/msg/Odometry", f"/{robot}/{topic}",
-                    lambda msg, k=key: self._on_odom(k, msg), QoSProfile(depth=100),  # type: ignore[misc]
-                )  # fmt: skip
-            if self.writer is not None:
-                for type_name, topic in (("nav_msgs/msg/Odometry", "slam/odom"),
-                                         ("nav_msgs/msg/Odometry", "ground_truth/odom"),
-                                         ("nav_msgs/msg/Odometry", "odom"),
-                                         ("fleetslam_msgs/msg/KeyframeGraph", "graph")):  # fmt: skip
-                    self.node.create_subscription(type_name, f"/{robot}/{topic}", self._record, QoSProfile(depth=100),
-                                                  raw=True)  # fmt: skip
+            topics: list[tuple[str, str, _OdometryTrack | None]] = [
+                (odometry, "slam/odom", self.tracks[f"{robot}/slam"]),
+                (odometry, "ground_truth/odom", self.tracks[f"{robot}/truth"]),
+            ]
+            if self.writer is not None:  # recorded only
+                topics += [(odometry, "odom", None), ("fleetslam_msgs/msg/KeyframeGraph", "graph", None)]
+            for type_name, topic, track in topics:
+                self.node.create_subscription(type_name, f"/{robot}/{topic}", partial(self._on_sample, track),
+                                              QoSProfile(depth=100), raw=True)  # fmt: skip
+            self.node.create_subscription(
+                "diagnostic_msgs/msg/DiagnosticArray", f"/{robot}/slam/diagnostics",
+                partial(self._on_diagnostics, robot), QoSProfile(depth=1), raw=True,
+            )  # fmt: skip
 
-    def _on_statistics(self, msg: Any) -> None:
+    def _on_statistics(self, data: bytes, info: Any) -> None:
+        from fleetslam.middleware.typesys import deserialize
+
+        msg = deserialize(data, info.type_name)
         with self.lock:
             row = self.table.update(msg)
             self.history.append({"t": time.time(), "agent": row.agent, "topic": row.topic,
                                  "subscriber": row.node_sub, "bandwidth_bps": row.bandwidth_bps})  # fmt: skip
         if self.writer is not None:
-            from fleetslam.middleware.typesys import serialize
-
-            self.writer.write("/statistics", "fleetslam_msgs/msg/TopicStatistics", time.time_ns(),
-                              serialize(msg, "fleetslam_msgs/msg/TopicStatistics"))  # fmt: skip
-
-    def _record(self, data: bytes, info: Any) -> None:
-        if self.writer is not None:
             self.writer.write(info.topic, info.type_name, info.received_timestamp_ns, data)
 
-    def _on_odom(self, key: str, msg: Any) -> None:
-        from fleetslam.middleware.typesys import ns_from_stamp
+    def _on_sample(self, track: _OdometryTrack | None, data: bytes, info: Any) -> None:
+        if self.writer is not None:
+            self.writer.write(info.topic, info.type_name, info.received_timestamp_ns, data)
+        if track is not None:
+            with self.lock:
+                track.add(data)
+
+    def _on_diagnostics(self, robot: str, data: bytes, info: Any) -> None:
+        with self.lock:
+            self._diagnostics[robot] = data
+
+    def trajectories(self) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """Stamps and 4×4 poses per ``<robot>/slam`` and ``<robot>/truth``."""
+        with self.lock:
+            return {key: track.samples() for key, track in self.tracks.items()}
+
+    def slam_diagnostics(self) -> dict[str, dict[str, str]]:
+        """The values of each robot's latest ``slam`` diagnostics status (robots that sent none are absent)."""
+        from fleetslam.middleware.typesys import deserialize
 
         with self.lock:
-            self.trajectories[key].append((ns_from_stamp(msg.header.stamp) / 1e9, msg.pose.pose))
+            latest = dict(self._diagnostics)
+        out = {}
+        for robot, data in latest.items():
+            values = slam_values(deserialize(data, "diagnostic_msgs/msg/DiagnosticArray"))
+            if values is not None:
+                out[robot] = values
+        return out
 
     def close(self) -> None:
         self.node.destroy()
         if self.writer is not None:
             self.writer.close()
+
+
+def slam_values(msg: Any) -> dict[str, str] | None:
+    """Key → value of the DiagnosticStatus named ``slam`` in a diagnostic_msgs/DiagnosticArray (None if absent)."""
+    for status in msg.status:
+        if status.name == "slam":
+            return {kv.key: kv.value for kv in status.values}
+    return None
 
 
 def run_demo(
@@ -239,6 +348,7 @@ def run_demo(
                 station.start()
                 print(f"operator console: {station.url}", file=output, flush=True)
             start = time.monotonic()
+            own_start = sample_process(os.getpid())
             supervisor_thread = threading.Thread(target=supervisor.run, kwargs={"poll_interval_s": 0.2}, daemon=True)
             supervisor_thread.start()
             try:
@@ -249,7 +359,7 @@ def run_demo(
                     elapsed = time.monotonic() - start
                     with monitor.lock:
                         totals = monitor.table.per_agent()
-                        frames = {k: len(v) for k, v in monitor.trajectories.items() if k.endswith("/slam")}
+                        frames = {k: len(v) for k, v in monitor.tracks.items() if k.endswith("/slam")}
                     summary = ", ".join(
                         f"{agent}: {t['bandwidth_bps'] / 1e3:.1f} kB/s, {int(t['dropped'])} dropped"
                         for agent, t in sorted(totals.items())
@@ -260,6 +370,12 @@ def run_demo(
                           file=output, flush=True)  # fmt: skip
             except KeyboardInterrupt:
                 print("[demo] stopping", file=output, flush=True)
+            # The run's figures, before saving the maps and stopping adds work of its own.
+            usage = supervisor.usage()
+            own_end = sample_process(os.getpid())
+            if own_start is not None and own_end is not None:
+                label = "demo (router, monitor" + (")" if headless else ", console)")
+                usage.insert(0, ProcessUsage.between(label, os.getpid(), own_start, own_end))
             if mode == "sim":
                 _save_maps(monitor.node, robots, out_dir / "maps", output)
             supervisor.stop()
@@ -271,10 +387,12 @@ def run_demo(
             elapsed = time.monotonic() - start
     with monitor.lock:
         rows = monitor.table.rows()
-    result = DemoResult(out_dir, elapsed, rows, monitor.history)
+    result = DemoResult(out_dir, elapsed, rows, monitor.history, processes=usage)
     if mode == "sim":
-        result.ate = _write_trajectories(monitor.trajectories, robots, out_dir, extrinsics)
+        result.ate = _write_trajectories(monitor.trajectories(), robots, out_dir, extrinsics)
         result.plots.append(_plot_trajectories(robots, out_dir))
+        diagnostics = monitor.slam_diagnostics()
+        result.slam = {robot: diagnostics.get(robot) for robot in robots}
     write_results(result)
     return result
 
@@ -293,21 +411,22 @@ def _save_maps(node: Node, robots: list[str], maps_dir: Path, output: TextIO) ->
 
 
 def _write_trajectories(
-    trajectories: dict[str, list[tuple[float, Any]]], robots: list[str], out_dir: Path, extrinsics: dict[str, Any]
+    trajectories: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]],
+    robots: list[str],
+    out_dir: Path,
+    extrinsics: dict[str, Any],
 ) -> dict[str, float]:
     """TUM files of every robot's SLAM and ground-truth camera trajectory, and the ATE (m) of each."""
-    from fleetslam.middleware.conversions import pose_matrix
     from fleetslam.trajectory import Trajectory, write_tum
 
     ate: dict[str, float] = {}
     for robot in robots:
         tracks = {}
         for kind, folder in (("slam", "trajectories"), ("truth", "ground_truth")):
-            samples = trajectories.get(f"{robot}/{kind}", [])
-            poses = [pose_matrix(p) for _, p in samples]
+            stamps, poses = trajectories.get(f"{robot}/{kind}", (np.zeros(0), np.zeros((0, 4, 4))))
             if kind == "truth" and robot in extrinsics:  # base_link ground truth → camera optical frame
-                poses = [p @ extrinsics[robot] for p in poses]
-            tracks[kind] = Trajectory.from_lists([t for t, _ in samples], poses)
+                poses = poses @ extrinsics[robot]
+            tracks[kind] = Trajectory.from_lists(stamps.tolist(), list(poses))
             write_tum(out_dir / folder / f"{robot}.txt", tracks[kind])
         if len(tracks["slam"]) >= 3 and len(tracks["truth"]) >= 3:
             try:
@@ -319,10 +438,53 @@ def _write_trajectories(
     return ate
 
 
+#: The SLAM diagnostics in the report's per-robot table: (column, key of the ``slam`` DiagnosticStatus).
+SLAM_COLUMNS = (
+    ("frames received", "frames_received"), ("processed", "frames_processed"), ("dropped", "frames_dropped"),
+    ("relocalisations", "relocalisations"), ("loop closures", "loop_closures"), ("keyframes", "keyframes"),
+    ("lost frames", "lost_frames"), ("coasting frames", "coasting_frames"), ("odometry ms (mean)", "odometry_ms_mean"),
+)  # fmt: skip
+MISSING = "—"
+
+
+def slam_table(slam: Mapping[str, Mapping[str, str] | None], ate: Mapping[str, float]) -> list[str]:
+    """Report lines: per robot its latest SLAM diagnostics and its ATE; "—" where a robot has no figure."""
+    robots = sorted(set(slam) | set(ate))
+    if not robots:
+        return []
+    lines = ["", "## SLAM per robot", "",
+             "Counts since the SLAM node started (its latest `slam/diagnostics`); ATE: SLAM against ground truth, "
+             "SE(3)-aligned, translation RMSE.", "",
+             "| robot | " + " | ".join(c for c, _ in SLAM_COLUMNS) + " | ATE RMSE (m) |",
+             "|---|" + "---:|" * (len(SLAM_COLUMNS) + 1)]  # fmt: skip
+    for robot in robots:
+        values = slam.get(robot) or {}
+        cells = [values.get(key, MISSING) for _, key in SLAM_COLUMNS]
+        cells.append(f"{ate[robot]:.3f}" if robot in ate else MISSING)
+        lines.append(f"| {robot} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def process_table(processes: Sequence[ProcessUsage]) -> list[str]:
+    """Report lines: CPU (% of one core, averaged over the run) and peak memory of every process."""
+    if not processes:
+        return []
+    lines = ["", "## Processes", "",
+             "CPU: % of one core, averaged over each process's life until the end of the run (the demo's own "
+             "process: over the run). Peak RSS: the most resident memory it held.", "",
+             "| process | pid | CPU % | CPU s | peak RSS (MiB) | restarts |",
+             "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for p in processes:
+        lines.append(f"| {p.label} | {p.pid if p.pid is not None else MISSING} | {p.cpu_percent:.1f} | "
+                     f"{p.cpu_s:.1f} | {p.peak_rss_mib:.0f} | {p.restarts} |")  # fmt: skip
+    return lines
+
+
 def write_results(result: DemoResult) -> None:
-    """statistics.json, report.md and bandwidth.png in the output folder."""
+    """statistics.json, processes.json, report.md/report.html and the plots in the output folder."""
     out = result.out_dir
     (out / "statistics.json").write_text(json.dumps([r.as_dict() for r in result.rows], indent=1))
+    (out / "processes.json").write_text(json.dumps([p.as_dict() for p in result.processes], indent=1))
     lines = [
         "# fleetslam demo report",
         "",
@@ -350,10 +512,8 @@ def write_results(result: DemoResult) -> None:
             extent = " × ".join(f"{v:.1f}" for v in (hi - lo))
             lines.append(f"| {path.name} | {tree.num_nodes()} | {tree.num_leaf_nodes()} | {len(occupied)} | "
                          f"{len(free)} | {extent} |")  # fmt: skip
-    if result.ate:
-        lines += ["", "## Trajectory error (SLAM vs ground truth, SE(3)-aligned, translation RMSE)", "",
-                  "| robot | ATE RMSE (m) |", "|---|---:|"]  # fmt: skip
-        lines += [f"| {robot} | {value:.3f} |" for robot, value in sorted(result.ate.items())]
+    lines += slam_table(result.slam, result.ate)
+    lines += process_table(result.processes)
     lines += ["", "## Per agent", "", "| agent | kB/s | delivered | dropped |", "|---|---:|---:|---:|"]
     for agent, t in sorted(result.per_agent().items()):
         lines.append(f"| {agent} | {t['bandwidth_bps'] / 1e3:.1f} | {int(t['delivered'])} | {int(t['dropped'])} |")

@@ -6,6 +6,9 @@ Each process runs in its own process group; its stdout and stderr are read line 
 process also gets SIGTERM when the supervising thread dies without stopping it (the launcher killed with
 SIGKILL, a test runner that aborts): its own process group keeps Ctrl-C of the terminal from reaching it, so
 nothing else would end it.
+
+:meth:`Supervisor.usage` reports each process's CPU time and peak memory from ``/proc`` (Linux): CPU % of one
+core averaged over its lifetime, peak resident set (``VmHWM``); a restarted process counts all its runs.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TextIO
 
 from fleetslam.launch.description import ProcessSpec
@@ -28,6 +32,78 @@ from fleetslam.launch.description import ProcessSpec
 log = logging.getLogger(__name__)
 
 _PR_SET_PDEATHSIG = 1
+#: How often the running processes' CPU and memory are sampled (the figures of a run that ends count too).
+USAGE_SAMPLE_PERIOD_S = 1.0
+
+
+@dataclass(frozen=True)
+class ProcessSample:
+    """CPU and memory of one process since it started, read from ``/proc``."""
+
+    cpu_s: float
+    """User and system CPU time (s) of all its threads, and of its children that it waited for."""
+    wall_s: float
+    """Time since it started (s)."""
+    peak_rss_mib: float
+    """Peak resident set size (``VmHWM``, MiB)."""
+
+
+def sample_process(pid: int, *, proc: Path = Path("/proc")) -> ProcessSample | None:
+    """CPU time, age and peak memory of a running process; None when it is gone or ``/proc`` is not Linux's."""
+    try:
+        stat = (proc / str(pid) / "stat").read_text()
+        status = (proc / str(pid) / "status").read_text()
+        uptime_s = float((proc / "uptime").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    # The command name (field 2) may hold spaces and parentheses: the fields after it follow the last ')'.
+    fields = stat[stat.rindex(")") + 2 :].split()
+    ticks = os.sysconf("SC_CLK_TCK")
+    utime, stime, cutime, cstime = (int(v) for v in fields[11:15])
+    started_s = int(fields[19]) / ticks
+    peak_kib = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
+    return ProcessSample((utime + stime + cutime + cstime) / ticks, max(0.0, uptime_s - started_s), peak_kib / 1024)
+
+
+def _exited(pid: int) -> bool:
+    """Whether a child has exited, without reaping it (Linux ``waitid`` with ``WNOWAIT``; False elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        return os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+    except ChildProcessError:
+        return False
+
+
+@dataclass(frozen=True)
+class ProcessUsage:
+    """What one supervised process cost over its runs."""
+
+    label: str
+    pid: int | None
+    """Its latest process id (None if it never started)."""
+    cpu_s: float
+    """CPU time (s), all runs."""
+    wall_s: float
+    """Time it ran (s), all runs."""
+    peak_rss_mib: float
+    """Largest peak resident set of its runs (MiB)."""
+    restarts: int = 0
+
+    @property
+    def cpu_percent(self) -> float:
+        """Average CPU load in % of one core (100 % = one core busy all the time)."""
+        return 100.0 * self.cpu_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    def as_dict(self) -> dict[str, object]:
+        return {"label": self.label, "pid": self.pid, "cpu_percent": round(self.cpu_percent, 2),
+                "cpu_s": round(self.cpu_s, 3), "wall_s": round(self.wall_s, 3),
+                "peak_rss_mib": round(self.peak_rss_mib, 1), "restarts": self.restarts}  # fmt: skip
+
+    @classmethod
+    def between(cls, label: str, pid: int, start: ProcessSample, end: ProcessSample) -> ProcessUsage:
+        """Usage of a process between two samples (peak memory: the process's own peak at ``end``)."""
+        return cls(label, pid, end.cpu_s - start.cpu_s, end.wall_s - start.wall_s, end.peak_rss_mib)
 
 
 def _parent_death_signal() -> Callable[[], None] | None:
@@ -59,6 +135,20 @@ class _Managed:
     next_start_at: float | None = 0.0
     exit_codes: list[int] = field(default_factory=list)
     readers: list[threading.Thread] = field(default_factory=list)
+    last_pid: int | None = None
+    sample: ProcessSample | None = None
+    """Latest sample of the running process."""
+    ended_cpu_s: float = 0.0
+    ended_wall_s: float = 0.0
+    ended_peak_rss_mib: float = 0.0
+    """Totals of the runs that ended (their last samples)."""
+
+    def end_run(self) -> None:
+        if self.sample is not None:
+            self.ended_cpu_s += self.sample.cpu_s
+            self.ended_wall_s += self.sample.wall_s
+            self.ended_peak_rss_mib = max(self.ended_peak_rss_mib, self.sample.peak_rss_mib)
+        self.sample = None
 
 
 class Supervisor:
@@ -86,6 +176,8 @@ class Supervisor:
         self._clock = clock
         self._preexec = _parent_death_signal()
         self._stopping = False
+        self._next_sample_at = 0.0
+        self._usage_lock = threading.Lock()
 
     # -- state -----------------------------------------------------------------------------------------
     def status(self) -> dict[str, dict[str, object]]:
@@ -99,14 +191,53 @@ class Supervisor:
             for m in self._managed
         }
 
+    def usage(self) -> list[ProcessUsage]:
+        """CPU and peak memory of every process, all its runs (the running one read now), in start order.
+
+        Running processes are sampled every ``USAGE_SAMPLE_PERIOD_S`` and once more when they have exited, before
+        they are reaped (a zombie still shows its CPU time, no longer its memory: the peak is that of the samples).
+        """
+        with self._usage_lock:
+            self._sample_running()
+            return [
+                ProcessUsage(
+                    m.spec.label,
+                    m.last_pid,
+                    m.ended_cpu_s + (m.sample.cpu_s if m.sample else 0.0),
+                    m.ended_wall_s + (m.sample.wall_s if m.sample else 0.0),
+                    max(m.ended_peak_rss_mib, m.sample.peak_rss_mib if m.sample else 0.0),
+                    m.restarts,
+                )
+                for m in self._managed
+            ]
+
+    def _sample_running(self) -> None:
+        for managed in self._managed:
+            process = managed.process  # another thread may reap it meanwhile: its run ends under the lock
+            sample = sample_process(process.pid) if process is not None else None
+            if sample is None:
+                continue
+            if managed.sample is not None:  # an exited, not yet reaped process shows no memory any more
+                sample = ProcessSample(
+                    sample.cpu_s, sample.wall_s, max(sample.peak_rss_mib, managed.sample.peak_rss_mib)
+                )
+            managed.sample = sample
+
     # -- lifecycle -------------------------------------------------------------------------------------
     def poll(self) -> bool:
         """Start what is due, reap what exited, schedule restarts; False once nothing is left to run."""
         now = self._clock()
         alive = False
+        if now >= self._next_sample_at:
+            self._next_sample_at = now + USAGE_SAMPLE_PERIOD_S
+            with self._usage_lock:
+                self._sample_running()
         for managed in self._managed:
             process = managed.process
             if process is not None:
+                if _exited(process.pid):  # its final figures, while the zombie still shows them
+                    with self._usage_lock:
+                        self._sample_running()
                 code = process.poll()
                 if code is None:
                     alive = True
@@ -154,10 +285,14 @@ class Supervisor:
             deadline = time.monotonic() + self._grace_s
             while time.monotonic() < deadline and any(m.process.poll() is None for m in running if m.process):
                 time.sleep(0.05)
+        with self._usage_lock:  # the stopped processes' final figures, before they are reaped
+            self._sample_running()
         for managed in self._managed:
             if managed.process is not None:
                 managed.exit_codes.append(managed.process.wait())
                 managed.process = None
+                with self._usage_lock:
+                    managed.end_run()
             for reader in managed.readers:
                 reader.join(timeout=2.0)
             managed.next_start_at = None
@@ -182,8 +317,11 @@ class Supervisor:
             self._schedule_restart(managed, 127, now)
             return
         managed.process = process
+        managed.last_pid = process.pid
         managed.started_at = now
         managed.next_start_at = None
+        with self._usage_lock:
+            managed.sample = sample_process(process.pid)
         self._emit(spec.label, f"started (pid {process.pid}): {' '.join(spec.argv)}")
         assert process.stdout is not None and process.stderr is not None
         managed.readers = [
@@ -195,6 +333,8 @@ class Supervisor:
 
     def _reap(self, managed: _Managed, code: int, now: float) -> None:
         managed.process = None
+        with self._usage_lock:
+            managed.end_run()
         managed.exit_codes.append(code)
         for reader in managed.readers:
             reader.join(timeout=1.0)

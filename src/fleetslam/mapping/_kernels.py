@@ -542,3 +542,31 @@ def collect_grid(grid, lo, dims):  # type: ignore[no-untyped-def]
                 occ[o] = packed
                 o += 1
     return free, occ
+
+
+@njit(cache=True)
+def rays_crossing_boxes(points, origin, lows, highs):  # type: ignore[no-untyped-def]
+    """Which segments ``origin → points[i]`` cross any of the axis-aligned boxes ``[lows[b], highs[b]]`` (slab
+    test, boxes in the points' frame)."""
+    hit = np.zeros(points.shape[0], np.bool_)
+    for i in range(points.shape[0]):
+        for b in range(lows.shape[0]):
+            near, far = 0.0, 1.0
+            for axis in range(3):
+                step = points[i, axis] - origin[axis]
+                lo, hi = lows[b, axis] - origin[axis], highs[b, axis] - origin[axis]
+                if step == 0.0:
+                    if lo > 0.0 or hi < 0.0:
+                        near, far = 1.0, 0.0
+                        break
+                    continue
+                t1, t2 = lo / step, hi / step
+                if t1 > t2:
+                    t1, t2 = t2, t1
+                near, far = max(near, t1), min(far, t2)
+                if near > far:
+                    break
+            if near <= far:
+                hit[i] = True
+                break
+    return hit

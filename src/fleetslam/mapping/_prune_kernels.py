@@ -130,6 +130,19 @@ def unmorton_keys(codes):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def morton_keys(keys):  # type: ignore[no-untyped-def]
+    """Morton codes of ``(N, 3)`` keys: :func:`fleetslam.mapping.keys.morton` in one pass."""
+    out = np.empty(keys.shape[0], dtype=np.uint64)
+    for i in range(keys.shape[0]):
+        out[i] = (
+            _spread3(np.uint64(keys[i, 0]))
+            | (_spread3(np.uint64(keys[i, 1])) << np.uint64(1))
+            | (_spread3(np.uint64(keys[i, 2])) << np.uint64(2))
+        )
+    return out
+
+
+@njit(cache=True)
 def collapse_levels(fine_codes, fine_values, coarse_codes, coarse_depths, coarse_values):  # type: ignore[no-untyped-def]
     """Canonical pruning: OctoMap's pruneNode (8 children, all leaves, equal values) applied bottom-up.
 

@@ -91,6 +91,25 @@ def table_update(keys, values, updates, deltas, base_values, has_base, clamp_min
 
 
 @njit(cache=True)
+def table_add(keys, values, updates, delta, room):  # type: ignore[no-untyped-def]
+    """Add ``delta`` to each key's value, unclamped (a missing key starts at 0). Stops before adding key number
+    ``room + 1`` (the caller grows the table and goes on). Returns (new keys, updates processed)."""
+    mask = np.uint64(keys.shape[0] - 1)
+    added = 0
+    for j in range(updates.shape[0]):
+        key = updates[j]
+        i = _probe(keys, key, mask)
+        if keys[i] != key:
+            if added == room:
+                return added, j
+            keys[i] = key
+            values[i] = 0.0
+            added += 1
+        values[i] += delta
+    return added, updates.shape[0]
+
+
+@njit(cache=True)
 def table_rehash(keys, values, new_keys, new_values):  # type: ignore[no-untyped-def]
     """Insert the table's entries into an empty table (``new_keys`` all EMPTY, a power-of-two size).
 
@@ -122,3 +141,34 @@ def table_set(keys, values, updates, new_values):  # type: ignore[no-untyped-def
             added += 1
         values[i] = new_values[j]
     return added
+
+
+@njit(cache=True)
+def table_delete(keys, values, dels):  # type: ignore[no-untyped-def]
+    """Remove keys (absent ones are skipped) by backward-shift deletion, which keeps every remaining key reachable
+    from its home slot without tombstones; returns the number removed."""
+    mask = np.uint64(keys.shape[0] - 1)
+    imask = np.int64(mask)
+    removed = 0
+    for j in range(dels.shape[0]):
+        key = dels[j]
+        i = _probe(keys, key, mask)
+        if keys[i] != key:
+            continue
+        removed += 1
+        # Pull later entries of the probe run into the hole when their home slot does not lie after the hole.
+        k = i
+        while True:
+            k = (k + 1) & imask
+            other = keys[k]
+            if other == EMPTY:
+                break
+            home = _slot(other, mask)
+            # `other` may move to the hole i unless its home lies cyclically in (i, k].
+            if (i <= k and i < home <= k) or (i > k and (home > i or home <= k)):
+                continue
+            keys[i] = other
+            values[i] = values[k]
+            i = k
+        keys[i] = EMPTY
+    return removed

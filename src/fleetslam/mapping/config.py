@@ -52,8 +52,8 @@ class MappingConfig(ConfigModel):
         return self
 
 
-def make_octree(config: MappingConfig) -> OccupancyOctree:
-    """An empty octree with the configured resolution and sensor model."""
+def make_octree(config: MappingConfig, *, track_changes: bool = True) -> OccupancyOctree:
+    """An empty octree with the configured resolution and sensor model (``track_changes``: see the octree)."""
     from fleetslam.mapping.octree import OccupancyOctree
 
     return OccupancyOctree(
@@ -64,4 +64,5 @@ def make_octree(config: MappingConfig) -> OccupancyOctree:
         clamp_max=config.clamp_max,
         occupancy_threshold=config.occupancy_threshold,
         accelerator=config.accelerator,
+        track_changes=track_changes,
     )

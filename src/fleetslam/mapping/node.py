@@ -1,30 +1,37 @@
 """The mapping node of one agent: keyframes and the optimised graph in, occupancy products out.
 
 Subscribes ``keyframes`` (fleetslam_msgs/Keyframe: depth as 16-bit PNG in mm, intrinsics, pose T_map_camera)
-and ``graph`` (fleetslam_msgs/KeyframeGraph: optimised poses). Publishes, at ``publish_rate`` when the map
-changed, ``map/occupied`` (PointCloud2 of occupied voxel centres), ``map/markers`` (MarkerArray, one CUBE_LIST
-per leaf size, coloured by height), ``map/grid`` (OccupancyGrid over a height band) and ``map/octomap``
-(octomap_msgs/Octomap, binary). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset``
-(Trigger). The work is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`.
+and ``graph`` (fleetslam_msgs/KeyframeGraph: optimised poses; each holds every pose, so only the latest one is
+decoded, at the next tick). Publishes, at ``publish_rate`` when the map changed, ``map/occupied`` (PointCloud2 of
+occupied voxel centres), ``map/markers`` (MarkerArray, one CUBE_LIST per leaf size, coloured by height),
+``map/grid`` (OccupancyGrid over a height band) and ``map/octomap`` (octomap_msgs/Octomap, binary) — as
+octomap_server, each only while someone subscribes to it (a subscriber that comes later gets the current map at
+the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset`` (Trigger). The work
+is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`, incrementally.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import Field
 
 from fleetslam.config import ConfigModel
+from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, pointcloud2_fields_and_data, project_occupancy_grid
-from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware import Node, Publisher, QoSProfile
 from fleetslam.middleware.conversions import pose_matrix
-from fleetslam.middleware.typesys import get_type, header, message_from_dict
+from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +45,12 @@ class MappingNodeConfig(ConfigModel):
     """Frame of the published map."""
     publish_rate: float = Field(default=1.0, gt=0)
     """How often changed maps are published (Hz)."""
+    reintegrate_period: float = Field(default=5.0, ge=0)
+    """Keyframes that the optimised graph moved are integrated again at most this often (s): loop closures in a row
+    move the same keyframes again and again, and one pass serves them all (new keyframes go in at every tick)."""
+    max_publish_load: float = Field(default=0.03, gt=0, le=1)
+    """Largest share of one core that building the map products may take: a publication that took t s is followed
+    by the next one no sooner than t / max_publish_load s later (a big map is published less often)."""
     pixel_stride: int = Field(default=4, ge=1)
     """Use every n-th pixel of a keyframe's depth image in each direction."""
     max_depth: float = Field(default=4.5, gt=0)
@@ -76,6 +89,26 @@ def pointcloud2_msg(points: np.ndarray, stamp_header: Any) -> Any:
     )  # fmt: skip
 
 
+class PublishPacer:
+    """Spaces out publications so that building them takes at most ``max_load`` of a core on average."""
+
+    def __init__(self, max_load: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.max_load = max_load
+        self._clock = clock
+        self._next = -math.inf
+
+    def due(self) -> bool:
+        return self._clock() >= self._next
+
+    def timed(self, work: Callable[[], bool]) -> bool:
+        """Run ``work``; if it did something (returned True), the next publication waits for its time share."""
+        start = self._clock()
+        did = work()
+        if did:
+            self._next = start + (self._clock() - start) / self.max_load
+        return did
+
+
 class MappingNode:
     """Adapter between the middleware and a :class:`KeyframeMapper`."""
 
@@ -83,14 +116,25 @@ class MappingNode:
         self.node = node
         self.config = config or MappingNodeConfig()
         self.mapper = KeyframeMapper(self.config.mapping)
-        self._dirty = False
+        self._latest_graph: bytes | None = None
+        self._version = 0
+        """Incremented whenever the map changes; each product remembers the version it last published."""
+        self._published = dict.fromkeys(("octomap", "occupied", "markers", "grid"), 0)  # nothing to say yet
+        self._centres: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._pacer = PublishPacer(self.config.max_publish_load)
+        self._next_reintegration = -math.inf
         latched = QoSProfile(durability="transient_local", depth=1)
-        self.cloud_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", latched)
-        self.marker_pub = node.create_publisher("visualization_msgs/msg/MarkerArray", "map/markers", latched)
-        self.grid_pub = node.create_publisher("nav_msgs/msg/OccupancyGrid", "map/grid", latched)
-        self.octomap_pub = node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched)
+        self._products: dict[str, tuple[Publisher, Callable[[Any], Any]]] = {
+            "octomap": (node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched), self._octomap),
+            "occupied": (node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", latched), self._cloud),
+            "markers": (node.create_publisher("visualization_msgs/msg/MarkerArray", "map/markers", latched),
+                        self._markers),
+            "grid": (node.create_publisher("nav_msgs/msg/OccupancyGrid", "map/grid", latched), self._grid),
+        }  # fmt: skip
         node.create_subscription("fleetslam_msgs/msg/Keyframe", "keyframes", self.on_keyframe, QoSProfile(depth=50))
-        node.create_subscription("fleetslam_msgs/msg/KeyframeGraph", "graph", self.on_graph, QoSProfile(depth=5))
+        node.create_subscription(
+            "fleetslam_msgs/msg/KeyframeGraph", "graph", self.on_graph_data, QoSProfile(depth=1), raw=True
+        )
         node.create_service("fleetslam_msgs/srv/SaveMap", "map/save", self.on_save)
         node.create_service("fleetslam_msgs/srv/ClearBbx", "map/clear_bbx", self.on_clear_bbx)
         node.create_service("std_srvs/srv/Trigger", "map/reset", self.on_reset)
@@ -107,31 +151,78 @@ class MappingNode:
             max_depth=self.config.max_depth,
         )  # fmt: skip
         self.mapper.add_keyframe(int(msg.id), points, pose_matrix(msg.pose))
-        self._dirty = True
+
+    def on_graph_data(self, data: bytes) -> None:
+        """Keep the latest graph's bytes: it supersedes every earlier one."""
+        self._latest_graph = data
 
     def on_graph(self, msg: Any) -> None:
-        poses = {int(i): pose_matrix(p) for i, p in zip(msg.keyframe_ids, msg.poses, strict=False)}
-        if self.mapper.update_poses(poses):
-            self._dirty = True
+        """Take the poses of a KeyframeGraph."""
+        ids = [int(i) for i in msg.keyframe_ids]
+        if not ids:
+            return
+        xyz = np.array([(p.position.x, p.position.y, p.position.z) for p in msg.poses], dtype=np.float64)
+        xyzw = np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w) for p in msg.poses],
+                        dtype=np.float64)  # fmt: skip
+        poses = np.tile(np.eye(4), (len(ids), 1, 1))
+        poses[:, :3, :3] = quat_to_matrix(xyzw)
+        poses[:, :3, 3] = xyz
+        self.mapper.update_poses(dict(zip(ids, poses, strict=False)))
 
     def on_timer(self) -> None:
-        if not self._dirty:
-            return
-        self._dirty = False
-        if self.mapper.integrate():
-            self.publish()
+        if self._latest_graph is not None:
+            data, self._latest_graph = self._latest_graph, None
+            self.on_graph(deserialize(data, "fleetslam_msgs/msg/KeyframeGraph"))
+        if self.mapper.pending:
+            self._integrate(moved=time.monotonic() >= self._next_reintegration)
+        if self._pacer.due():
+            self._pacer.timed(self.publish)
+
+    def _integrate(self, *, moved: bool = True) -> None:
+        mapper = self.mapper
+        before = (mapper.rebuilds, mapper.reintegrated, mapper.replayed)
+        if moved and mapper.moved:
+            self._next_reintegration = time.monotonic() + self.config.reintegrate_period
+        start = time.perf_counter()
+        scans = mapper.integrate(moved=moved)
+        if scans:
+            self._version += 1
+        seconds = time.perf_counter() - start
+        if mapper.rebuilds != before[0]:
+            log.info("map rebuilt from %d keyframes in %.2f s (most moved)", scans, seconds)
+        elif mapper.reintegrated != before[1]:
+            log.info("%d moved keyframes integrated again, %d scans replayed, in %.2f s",
+                     mapper.reintegrated - before[1], mapper.replayed - before[2], seconds)  # fmt: skip
 
     # -- outputs ------------------------------------------------------------------------------------------------
-    def publish(self) -> None:
-        tree = self.mapper.tree
-        now = self.node.now_ns()
-        stamp = header(self.config.frame_id, now)
-        centres, sizes = tree.occupied_centers()
-        self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
+    def publish(self) -> bool:
+        """Publish each product that someone subscribes to if the map changed since; whether any was."""
+        published = False
+        for name, (publisher, build) in self._products.items():
+            if self._published.get(name) == self._version or not publisher.matched_subscriptions:
+                continue
+            message = build(header(self.config.frame_id, self.node.now_ns()))
+            publisher.publish(message)
+            self._published[name] = self._version
+            published = True
+        return published
+
+    def _occupied(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Centres and sizes of the occupied leaves, once per map version (the cloud, markers and grid share them)."""
+        if self._centres is None or self._centres[0] != self._version:
+            centres, sizes = self.mapper.tree.occupied_centers()
+            self._centres = (self._version, centres, sizes)
+        return self._centres[1], self._centres[2]
+
+    def _cloud(self, stamp: Any) -> Any:
+        return pointcloud2_msg(self._occupied()[0], stamp)
+
+    def _markers(self, stamp: Any) -> Any:
+        centres, sizes = self._occupied()
         z_range = (float(centres[:, 2].min()), float(centres[:, 2].max())) if len(centres) else (0.0, 1.0)
         markers = []
         point, colour = get_type("geometry_msgs/msg/Point"), get_type("std_msgs/msg/ColorRGBA")
-        for cubes in cube_list_markers(centres, sizes, tree.resolution, height_range=z_range):
+        for cubes in cube_list_markers(centres, sizes, self.mapper.tree.resolution, height_range=z_range):
             marker = message_from_dict(
                 "visualization_msgs/msg/Marker",
                 {
@@ -150,7 +241,11 @@ class MappingNode:
                 marker.colors = [colour(r=r, g=g, b=b, a=a) for r, g, b, a in cubes.colors.tolist()]
             marker.header = stamp
             markers.append(marker)
-        self.marker_pub.publish(get_type("visualization_msgs/msg/MarkerArray")(markers=markers))
+        return get_type("visualization_msgs/msg/MarkerArray")(markers=markers)
+
+    def _grid(self, stamp: Any) -> Any:
+        tree = self.mapper.tree
+        centres, sizes = self._occupied()
         free_centres, free_sizes = tree.free_centers()
         grid, origin = project_occupancy_grid(
             centres, sizes, free_centres, free_sizes, tree.resolution, self.config.grid_z_min, self.config.grid_z_max
@@ -164,7 +259,10 @@ class MappingNode:
              "data": grid.reshape(-1).astype(np.int8)},
         )  # fmt: skip
         occupancy.header = stamp
-        self.grid_pub.publish(occupancy)
+        return occupancy
+
+    def _octomap(self, stamp: Any) -> Any:
+        tree = self.mapper.tree
         octomap = message_from_dict(
             "octomap_msgs/msg/Octomap",
             octomap_message_fields(
@@ -172,14 +270,14 @@ class MappingNode:
             ),
         )
         octomap.header = stamp
-        self.octomap_pub.publish(octomap)
+        return octomap
 
     # -- services -----------------------------------------------------------------------------------------------
     def on_save(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
         path = Path(request.path or self.config.save_path)
         try:
-            self.mapper.integrate()
+            self._integrate()
             path.parent.mkdir(parents=True, exist_ok=True)
             tree = self.mapper.tree
             written = tree.write(path) if path.suffix == ".ot" else tree.write_binary(path)
@@ -194,11 +292,12 @@ class MappingNode:
         lo = [request.min.x, request.min.y, request.min.z]
         hi = [request.max.x, request.max.y, request.max.z]
         cleared = self.mapper.tree.clear_bbox(lo, hi)
-        self._dirty = True
+        self._version += 1
         self.publish()
         return get_type("fleetslam_msgs/srv/ClearBbx_Response")(success=True, message=f"cleared {cleared} leaves")
 
     def on_reset(self, request: Any) -> Any:
         self.mapper.reset()
+        self._version += 1
         self.publish()
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="map reset")

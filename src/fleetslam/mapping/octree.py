@@ -86,6 +86,7 @@ class OccupancyOctree:
         accelerator: where scans' rays are walked: ``"cpu"``, ``"cuda"`` (a CUDA GPU, required), or ``"auto"``
             (the GPU when numba finds one, else the CPU; a GPU failure falls back to the CPU). Results are
             identical either way.
+        track_changes: note the changed voxels for :meth:`pop_changed_keys` (off: a tree nobody pops).
     """
 
     def __init__(
@@ -98,6 +99,7 @@ class OccupancyOctree:
         clamp_max: float = 0.971,
         occupancy_threshold: float = 0.5,
         accelerator: str = "auto",
+        track_changes: bool = True,
     ) -> None:
         if not resolution > 0 or not math.isfinite(resolution):
             raise ValueError(f"resolution must be a positive number, got {resolution}")
@@ -123,7 +125,9 @@ class OccupancyOctree:
         self._values = np.zeros(1024, dtype=np.float32)
         self._count = 0
         self._coarse: dict[tuple[int, int], np.float32] = {}
+        self.track_changes = track_changes
         self._changes: list[NDArray[np.uint64]] = []
+        self._pending_changes = 0
         self._structure: _Structure | None = None
 
     # -- storage ---------------------------------------------------------------------------------------------
@@ -165,6 +169,24 @@ class OccupancyOctree:
 
         Non-finite points and points outside the key range are skipped and counted (one log line per scan).
         """
+        pts, free, occ, status = self._scan_update(points, origin, max_range, discretize)
+        self._apply(free, occ)
+        n_nonfinite = int(np.count_nonzero(status == 1))
+        n_out = int(np.count_nonzero(status == 2))
+        used = len(pts) - n_nonfinite - n_out
+        return InsertSummary(len(pts), used, n_nonfinite, n_out, len(free), len(occ))
+
+    def compute_update(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float = -1.0, discretize: bool = False
+    ) -> tuple[NDArray[np.uint64], NDArray[np.uint64]]:
+        """OctoMap's computeUpdate: the packed finest keys a scan marks free and occupied, each once (occupied
+        wins), without changing the tree. :meth:`apply_update` of them is :meth:`insert_point_cloud`."""
+        _, free, occ, _ = self._scan_update(points, origin, max_range, discretize)
+        return free, occ
+
+    def _scan_update(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float, discretize: bool
+    ) -> tuple[NDArray[np.float32], NDArray[np.uint64], NDArray[np.uint64], NDArray[np.uint8]]:
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float32).reshape(-1, 3))
         origin32 = np.ascontiguousarray(np.asarray(origin, dtype=np.float32).reshape(3))
         if not np.isfinite(origin32).all() or not coords_to_keys(origin32, self.resolution)[1][0]:
@@ -180,9 +202,51 @@ class OccupancyOctree:
         n_out = int(np.count_nonzero(status == 2))
         if n_nonfinite or n_out:
             log.info("scan: skipped %d non-finite and %d out-of-range points of %d", n_nonfinite, n_out, len(pts))
-        self._apply(free, occ)
-        used = len(pts) - n_nonfinite - n_out
-        return InsertSummary(len(pts), used, n_nonfinite, n_out, len(free), len(occ))
+        return pts, free, occ, status
+
+    def apply_update(self, free: NDArray[np.uint64], occupied: NDArray[np.uint64]) -> None:
+        """One scan's evidence (keys from :meth:`compute_update`): a miss for each free voxel, a hit for each
+        occupied one, clamped (OctoMap's insertPointCloud after computeUpdate)."""
+        self._apply(free, occupied)
+
+    def forget(self, packed: NDArray[np.uint64]) -> int:
+        """Make finest voxels (packed keys) unknown again; returns how many were known. A voxel inside a pruned
+        leaf splits it first, as an update would."""
+        packed = np.ascontiguousarray(packed, dtype=np.uint64)
+        split = 0
+        if self._coarse:
+            for key in packed[T.table_find_many(self._keys, packed) < 0].tolist():
+                found = self._coarse_containing(key)
+                if found is not None:
+                    self._split(found, key, self._coarse[found])  # the siblings keep its value; the key is gone
+                    split += 1
+        removed = int(T.table_delete(self._keys, self._values, packed))
+        self._count -= removed
+        if removed or split:
+            self._record_changes(packed)
+            self._structure = None
+        return removed + split
+
+    def assign(self, packed: NDArray[np.uint64], log_odds: NDArray[np.floating]) -> None:
+        """Set finest voxels (packed keys) to log-odds values, clamped; NaN makes a voxel unknown."""
+        packed = np.ascontiguousarray(packed, dtype=np.uint64)
+        values = np.asarray(log_odds, dtype=np.float32)
+        unknown = np.isnan(values)
+        if unknown.any():
+            self.forget(packed[unknown])
+            packed, values = packed[~unknown], values[~unknown]
+        if not len(packed):
+            return
+        if self._coarse:  # split the pruned leaves holding them: their other voxels keep the leaf's value
+            for key in packed[T.table_find_many(self._keys, packed) < 0].tolist():
+                found = self._coarse_containing(key)
+                if found is not None:
+                    self._split(found, key, self._coarse[found])
+        self._reserve(len(packed))
+        clamped = np.clip(values, self.clamp_min_log, self.clamp_max_log).astype(np.float32)
+        self._count += int(T.table_set(self._keys, self._values, packed, clamped))
+        self._record_changes(packed)
+        self._structure = None
 
     def _scan_keys(
         self, points: NDArray[np.float32], origin: NDArray[np.float32], max_range: float
@@ -215,8 +279,19 @@ class OccupancyOctree:
             keep = self._expand_coarse(updates, deltas, base, has_base)
             updates, deltas, base, has_base = updates[keep], deltas[keep], base[keep], has_base[keep]
         touched = self._update_table(updates, deltas, base, has_base)
-        self._changes.append(updates[touched])
+        self._record_changes(updates[touched])
         self._structure = None
+
+    def _record_changes(self, packed: NDArray[np.uint64]) -> None:
+        """Note changed voxels for :meth:`pop_changed_keys`; merged once they outnumber the stored voxels, so a
+        tree nobody pops keeps at most about two entries per voxel."""
+        if not self.track_changes or not len(packed):
+            return
+        self._changes.append(packed)
+        self._pending_changes += len(packed)
+        if self._pending_changes > max(1 << 16, 2 * self._count):
+            self._changes = [np.unique(np.concatenate(self._changes))]
+            self._pending_changes = len(self._changes[0])
 
     def _coarse_containing(self, packed: int) -> tuple[int, int] | None:
         x, y, z = (packed >> 32) & 0xFFFF, (packed >> 16) & 0xFFFF, packed & 0xFFFF
@@ -351,6 +426,10 @@ class OccupancyOctree:
                     values[j] = float(self._coarse[found])
         return values
 
+    def voxel_log_odds(self, packed: ArrayLike) -> NDArray[np.float64]:
+        """Log-odds of finest voxels given by packed keys (NaN: unknown)."""
+        return self._values_at(np.ascontiguousarray(packed, dtype=np.uint64))
+
     def log_odds(self, xyz: ArrayLike) -> float | NDArray[np.float64] | None:
         """Log-odds at points: a float (None if unknown) for one point ``(3,)``, an array (NaN = unknown) for
         ``(N, 3)``."""
@@ -408,6 +487,7 @@ class OccupancyOctree:
             return np.zeros((0, 3), np.uint16)
         changed = np.unique(np.concatenate(self._changes))
         self._changes = []
+        self._pending_changes = 0
         return unpack(changed)
 
     def pop_changes(self) -> NDArray[np.float64]:
@@ -428,7 +508,7 @@ class OccupancyOctree:
         values[inside] = self.clamp_min_log
         self._load_leaves(LeafArrays(leaves.keys, leaves.depths, values))
         fine = inside & (leaves.depths == TREE_DEPTH)
-        self._changes.append(pack(leaves.keys[fine]))
+        self._record_changes(pack(leaves.keys[fine]))
         return int(inside.sum())
 
     def merge(self, other: OccupancyOctree, transform: ArrayLike | None = None) -> None:

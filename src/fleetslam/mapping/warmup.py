@@ -1,5 +1,5 @@
-"""Compile the octree engine's numba kernels into their on-disk cache, so that the first scan of a mapping node
-does not wait for the compiler (about 20 s on two cores). ``scripts/setup`` runs it:
+"""Compile the octree engine's numba kernels (and the fleet map's) into their on-disk cache, so that the first
+scan of a mapping node does not wait for the compiler (about 20 s on two cores). ``scripts/setup`` runs it:
 
     python -m fleetslam.mapping.warmup
 """
@@ -13,7 +13,10 @@ import numpy as np
 
 def compile_kernels() -> float:
     """Run every kernel a mapping node uses once, on a small scan; returns the seconds it took."""
+    from fleetslam.fusion.fleet_map import FleetMap
+    from fleetslam.geometry import pose_from_planar
     from fleetslam.mapping.octree import OccupancyOctree
+    from fleetslam.mapping.voxel_table import VoxelTable
 
     start = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -23,8 +26,17 @@ def compile_kernels() -> float:
     tree.insert_point_cloud(points, np.zeros(3, np.float32))  # grows the table: every insertion kernel
     tree.insert_point_cloud(points[:10], np.zeros(3, np.float32), max_range=1.0)
     tree.num_nodes()  # the canonical structure's kernels
+    free, occupied = tree.compute_update(points[:50], np.zeros(3, np.float32))
+    table = VoxelTable()  # a mapping node's re-integration: voxel sets, replay, assignment
+    table.set(free, np.zeros(len(free), np.float32))
+    tree.assign(occupied, table.get(occupied))  # absent from the table: NaN, so forgotten
+    table.add(free, 1.0)
+    table.delete(free[:10])
     tree.prune()
     tree.log_odds(points[0])
+    fleet = FleetMap(0.05)  # the fleet map node's kernels
+    fleet.set_transform("b", pose_from_planar(1.0, 2.0, 0.3))
+    fleet.update_agent("b", tree)
     return time.perf_counter() - start
 
 
