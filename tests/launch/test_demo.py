@@ -83,7 +83,8 @@ def _diagnostics(agent: str, values: dict[str, str]) -> Any:
 
 
 SLAM_VALUES = {"frames_received": "812", "frames_processed": "790", "frames_dropped": "22", "relocalisations": "1",
-               "loop_closures": "14", "lost_frames": "3", "coasting_frames": "9", "keyframes": "203",
+               "loop_closures": "14", "loops_retracted": "2", "lost_frames": "3", "coasting_frames": "9",
+               "keyframes": "203",
                "odometry_ms_mean": "11.42", "latency_ms_mean": "20.1"}  # fmt: skip
 
 
@@ -100,8 +101,8 @@ def test_report_tables_per_robot_slam_and_per_process(tmp_path: Path) -> None:
     lines = (tmp_path / "report.md").read_text().splitlines()
     header_row = next(line for line in lines if line.startswith("| robot | frames received"))
     assert header_row.endswith("| odometry ms (mean) | ATE RMSE (m) |")
-    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 203 | 3 | 9 | 11.42 | 0.012 |" in lines
-    assert "| r2d2 | — | — | — | — | — | — | — | — | — | 0.020 |" in lines  # SLAM never published diagnostics
+    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 2 | 203 | 3 | 9 | 11.42 | 0.012 |" in lines
+    assert "| r2d2 | — | — | — | — | — | — | — | — | — | — | 0.020 |" in lines  # SLAM never published diagnostics
     assert "| demo (router, monitor) | 100 | 3.0 | 3.0 | 250 | 0 |" in lines
     assert "| c3po/mapping | 101 | 10.0 | 9.5 | 410 | 1 |" in lines
     assert "| sim | — | 0.0 | 0.0 | 0 | 0 |" in lines  # never started

@@ -441,7 +441,8 @@ def _write_trajectories(
 #: The SLAM diagnostics in the report's per-robot table: (column, key of the ``slam`` DiagnosticStatus).
 SLAM_COLUMNS = (
     ("frames received", "frames_received"), ("processed", "frames_processed"), ("dropped", "frames_dropped"),
-    ("relocalisations", "relocalisations"), ("loop closures", "loop_closures"), ("keyframes", "keyframes"),
+    ("relocalisations", "relocalisations"), ("loop closures", "loop_closures"),
+    ("loops retracted", "loops_retracted"), ("keyframes", "keyframes"),
     ("lost frames", "lost_frames"), ("coasting frames", "coasting_frames"), ("odometry ms (mean)", "odometry_ms_mean"),
 )  # fmt: skip
 MISSING = "—"

@@ -3,9 +3,12 @@
 Information matrices are 6×6 over ``(x, y, z, roll, pitch, yaw)`` like :class:`fleetslam.slam.signature.Link`
 (translation first); GTSAM's Pose3 tangent is rotation first, so blocks are swapped here.
 
-A new loop is tested by a full Levenberg–Marquardt optimisation; if afterwards any constraint's translational
-error exceeds ``optimize_max_error`` times its expected standard deviation, the loop is rejected and removed
-(RTAB-Map's RGBD/OptimizeMaxError). Accepted loops restart iSAM2 from the LM solution.
+A new loop is added to iSAM2; if afterwards any constraint's translational error exceeds ``optimize_max_error``
+times its expected standard deviation, the loop is rejected and removed (RTAB-Map's RGBD/OptimizeMaxError) —
+unless the constraint over the bound is an earlier loop and the new one agrees with the graph: then the earlier
+loop is retracted if the graph without it is consistent. Loops are robust factors, so a slightly wrong one keeps
+its residual near the bound instead of bending the graph; without retraction it would veto every later loop for
+as long as the robot patrols.
 """
 
 from __future__ import annotations
@@ -65,7 +68,10 @@ class PoseGraph:
         self._graph = self._g.NonlinearFactorGraph()
         self._values = self._g.Values()
         self._constraints: list[Constraint] = []
-        self._factor_of: list[int] = []
+        self._factor_index: dict[int, int] = {}
+        """Index in ``_graph`` of each loop constraint's factor, by ``id()`` of the constraint."""
+        self.retracted: list[Constraint] = []
+        """Loops accepted earlier and retracted because later loops disputed them."""
         self._isam = self._new_isam()
         self._pending_graph = self._g.NonlinearFactorGraph()
         self._pending_values = self._g.Values()
@@ -160,6 +166,8 @@ class PoseGraph:
                 if worst <= self.optimize_max_error:
                     self._isam = self._new_isam()
                     self._isam.update(graph, result)
+            if worst > self.optimize_max_error and self._retract_disputed(candidate, factor, worst_constraint, result):
+                return True
             if worst > self.optimize_max_error:
                 logger.info(
                     "loop %d-%d rejected: constraint %d-%d error is %.1f std (max %.1f)",
@@ -174,8 +182,50 @@ class PoseGraph:
                 self._isam.update()
                 self._store(self._isam.calculateEstimate())
                 return False
+        self._add_loop_factor(candidate, factor)
+        self._store(result)
+        return True
+
+    def _add_loop_factor(self, loop: Constraint, factor: Any) -> None:
+        self._factor_index[id(loop)] = int(self._graph.size())
         self._graph.add(factor)
-        self._constraints.append(candidate)
+        self._constraints.append(loop)
+
+    def _retract_disputed(self, candidate: Constraint, factor: Any, disputed: Constraint, values: Any) -> bool:
+        """Accept ``candidate`` in place of the earlier loop ``disputed`` when the candidate itself is within the
+        bound, and the graph with the candidate and without ``disputed`` is consistent (optimised afresh). One
+        loop at a time: a wrong candidate that pushes several loops over the bound stays rejected."""
+        if disputed.kind != "loop" or disputed is candidate:
+            return False
+        own, _ = self._worst_error([candidate], values)
+        if own > self.optimize_max_error:
+            return False
+        g = self._g
+        skip = self._factor_index[id(disputed)]
+        graph = g.NonlinearFactorGraph()
+        for i in range(self._graph.size()):
+            if i != skip:
+                graph.add(self._graph.at(i))
+        graph.add(factor)
+        params = g.LevenbergMarquardtParams()
+        params.setMaxIterations(100)
+        result = g.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        kept = [c for c in self._constraints if c is not disputed]
+        worst, _ = self._worst_error([*kept, candidate], result)
+        if worst > self.optimize_max_error:
+            return False
+        logger.info(
+            "loop %d-%d retracted: the graph with loop %d-%d is consistent without it (worst error %.1f std)",
+            disputed.a, disputed.b, candidate.a, candidate.b, worst,
+        )  # fmt: skip
+        self._graph = graph
+        self._constraints = [*kept, candidate]
+        del self._factor_index[id(disputed)]
+        self._factor_index = {key: i - (i > skip) for key, i in self._factor_index.items()}
+        self._factor_index[id(candidate)] = int(graph.size()) - 1
+        self.retracted.append(disputed)
+        self._isam = self._new_isam()
+        self._isam.update(graph, result)
         self._store(result)
         return True
 

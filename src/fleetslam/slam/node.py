@@ -150,8 +150,8 @@ class SlamNode:
         self.frames = 0
         """Frames processed."""
         self.queue = FrameQueue(self.config.max_pending)
-        self.counts = {"relocalisations": 0, "loop_closures": 0, "lost_frames": 0, "coasting_frames": 0,
-                       "keyframes": 0, "failed_frames": 0}  # fmt: skip
+        self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
+                       "coasting_frames": 0, "keyframes": 0, "failed_frames": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
         self._lock = threading.Lock()
@@ -332,6 +332,8 @@ class SlamNode:
         odometry = step.odometry
         self.counts["keyframes"] += step.keyframe_id is not None
         self.counts["loop_closures"] += step.loop_closed
+        if self.pipeline is not None:
+            self.counts["loops_retracted"] = len(self.pipeline.graph.retracted)
         self.counts["relocalisations"] += step.relocalized
         self.counts["lost_frames"] += bool(odometry.lost)
         self.counts["coasting_frames"] += bool(odometry.coasting)

@@ -21,10 +21,10 @@ from numpy.typing import NDArray
 
 from fleetslam.config import dump_config
 from fleetslam.datasets.base import RGBDFrame, RGBDSource
-from fleetslam.geometry import invert
+from fleetslam.geometry import invert, rotation_angle
 from fleetslam.slam.backend import PoseGraph, information_from_std, make_pose_graph
 from fleetslam.slam.config import SlamConfig
-from fleetslam.slam.odometry import VisualOdometry, make_odometry
+from fleetslam.slam.odometry import OdometryResult, VisualOdometry, make_odometry
 from fleetslam.trajectory import Trajectory, write_tum
 
 logger = logging.getLogger(__name__)
@@ -264,8 +264,8 @@ class SlamPipeline:
             assert odometry_transform is not None
             guess = self.graph.optimize()[last_kf] @ odometry_transform
             self.graph.add_node(node, guess)
-            info = self.odometry_information * (0.01 if result.lost else 1.0)
-            self.graph.add_odometry(last_kf, node, odometry_transform, info)
+            information = self._link_information(result, odometry_transform)
+            self.graph.add_odometry(last_kf, node, odometry_transform, information)
         transform = hypothesis.transform if hypothesis is not None and hypothesis.accepted else None
         if transform is not None:
             transform = self.odometry.constrain(transform)
@@ -277,6 +277,22 @@ class SlamPipeline:
                 rejected.append(pair)
             record["loop"] = {"match": pair[0], "accepted": pair in accepted}
         return node
+
+    def _link_information(self, result: OdometryResult, transform: NDArray[np.float64]) -> NDArray[np.float64]:
+        """How well the odometry knows a keyframe from the last one: as the visual odometry does, unless the map
+        was restarted — after coasting, the wheels alone carried the pose there (their drift over that motion, as
+        in the odometry's prediction); after losing track, nothing did (nearly free)."""
+        if result.lost:
+            return self.odometry_information * 0.01
+        if not (result.coasting and result.map_restarted):
+            return self.odometry_information
+        backend, drift = self.config.backend, self.config.odometry.wheel_drift
+        translation = drift * float(np.linalg.norm(transform[:3, 3])) + 3e-3
+        rotation = drift * rotation_angle(transform) + np.radians(0.2)
+        return information_from_std(
+            float(np.hypot(backend.odometry_translation_std, translation)),
+            float(np.hypot(np.radians(backend.odometry_rotation_std_deg), rotation)),
+        )
 
 
 def run_offline(
