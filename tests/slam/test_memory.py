@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fleetslam.errors import SlamError
 from fleetslam.slam.loop_closure import make_loop_closure_detector
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.memory import Memory
@@ -165,3 +166,27 @@ def test_bag_of_words_weights_are_tf_idf() -> None:
     assert weights[0] == pytest.approx(expected)
     assert np.all(weights >= 0)
     assert memory.bag_of_words(999)[0].size == 0
+
+
+def test_word_budget_quantises_the_strongest_keypoints_and_keeps_every_descriptor() -> None:
+    rng = np.random.default_rng(23)
+    memory = Memory(VisualVocabulary(), stm_size=2, max_words=40)
+    places = [make_place(rng, place_pose(k)) for k in range(4)]
+    for k, place in enumerate(places):
+        obs = observe(rng, place, place.pose)
+        responses = rng.uniform(0.0, 1.0, len(obs.descriptors))
+        added = memory.add(float(k), obs.pose, obs.keypoints, obs.points3d, obs.descriptors, responses=responses)
+        signature = added.signature
+        strongest = np.sort(np.argsort(-responses)[:40])
+        assert signature.word_count == 40
+        np.testing.assert_array_equal(np.flatnonzero(signature.word_ids >= 0), strongest)
+        assert len(signature.descriptors) == len(obs.descriptors)  # verification still sees every keypoint
+    assert len(memory.vocabulary) <= 4 * 40
+    # Term frequencies are over the words a location has, not its keypoints: its weights sum to a weighted mean
+    # of its words' idf (divided by every keypoint, they would fall well below the smallest).
+    words, weights = memory.bag_of_words(1)
+    idf = np.log10(len(memory.signatures) / np.array([len(memory.vocabulary.references(int(w))) for w in words]))
+    assert len(words) > 0 and idf.min() - 1e-12 <= float(weights.sum()) <= idf.max() + 1e-12
+    with pytest.raises(SlamError, match="3 responses for"):
+        obs = observe(rng, places[0], places[0].pose)
+        memory.add(9.0, obs.pose, obs.keypoints, obs.points3d, obs.descriptors, responses=[1.0, 2.0, 3.0])

@@ -293,8 +293,10 @@ class LoopClosureDetector:
         odometry_information: ArrayLike | None = None,
         rgb_compressed: bytes | None = None,
         depth_compressed: bytes | None = None,
+        responses: ArrayLike | None = None,
     ) -> LoopHypothesis:
-        """Add one keyframe and decide whether it closes a loop (see the module docstring)."""
+        """Add one keyframe and decide whether it closes a loop (see the module docstring); ``responses`` (the
+        detector's, per keypoint) choose which keypoints become words when the memory limits them."""
         start = self.clock()
         added = self.memory.add(
             stamp,
@@ -306,6 +308,7 @@ class LoopClosureDetector:
             odometry_information=odometry_information,
             rgb_compressed=rgb_compressed,
             depth_compressed=depth_compressed,
+            responses=responses,
         )
         query = added.signature
         match_id: int | None = None
@@ -372,6 +375,7 @@ def load_memory(
         max_wm_size=memory.max_wm_size,
         max_retrieved=memory.max_retrieved,
         keep_images=memory.keep_images,
+        max_words=loop.max_words,
     )
 
 
@@ -400,6 +404,7 @@ def make_loop_closure_detector(
             max_wm_size=memory.max_wm_size,
             max_retrieved=memory.max_retrieved,
             keep_images=memory.keep_images,
+            max_words=loop.max_words,
         )
     verifier = GeometricVerifier(
         camera_matrix,

@@ -43,6 +43,12 @@ class LoopClosureConfig(ConfigModel):
     """Absolute bound on the distance to the nearest word for a match (0 = no bound, NNDR only). Hamming bits
     for binary descriptors, L2 units for float ones."""
 
+    max_words: int = Field(400, ge=0)
+    """Keypoints of a keyframe that become visual words, the strongest first (0 = all; RTAB-Map Kp/MaxFeatures,
+    500). Every keyframe searches all words in RAM and adds those it does not match: at 1000 features a keyframe
+    brought ~600 new words and the search took 340 ms at 100 locations, growing with the working memory. The
+    verification still matches every keypoint."""
+
     tf_idf_likelihood: bool = True
     """Score locations with TF-IDF over the inverted index (RTAB-Map Kp/TfIdfLikelihoodUsed); if false, with the
     ratio of common words (RTAB-Map's Signature::compareTo)."""

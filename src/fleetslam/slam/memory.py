@@ -69,7 +69,9 @@ class Memory:
         max_retrieved: int = 2,
         keep_images: bool = True,
         map_id: int = 0,
+        max_words: int = 0,
     ) -> None:
+        """``max_words``: keypoints of a location quantised to words, the strongest first (0: all)."""
         if stm_size < 1:
             raise SlamError(f"memory: stm_size={stm_size} must be >= 1")
         self.vocabulary = vocabulary
@@ -79,6 +81,7 @@ class Memory:
         self.max_retrieved = max_retrieved
         self.keep_images = keep_images
         self.map_id = map_id
+        self.max_words = max_words
         self.signatures: dict[int, Signature] = {}
         self.stm: list[int] = []
         """STM ids, oldest first."""
@@ -88,6 +91,19 @@ class Memory:
         self._next_id = 1
         self.last_id: int | None = None
         """Id of the most recently added location."""
+
+    def _word_keypoints(self, count: int, responses: ArrayLike | None) -> NDArray[np.intp]:
+        # Every unmatched descriptor becomes a new word, and each keyframe's search is over every word in RAM:
+        # words per location set both the growth of the vocabulary and the cost of the search (RTAB-Map
+        # Kp/MaxFeatures, 500 by default).
+        if self.max_words <= 0 or count <= self.max_words:
+            return np.arange(count, dtype=np.intp)
+        if responses is None:
+            return np.arange(self.max_words, dtype=np.intp)
+        strength = np.asarray(responses, dtype=np.float64).reshape(-1)
+        if len(strength) != count:
+            raise SlamError(f"memory: {len(strength)} responses for {count} descriptors")
+        return np.sort(np.argsort(-strength, kind="stable")[: self.max_words])
 
     # ------------------------------------------------------------------ queries
     def where(self, location_id: int) -> MemoryKind:
@@ -125,10 +141,13 @@ class Memory:
         odometry_information: ArrayLike | None = None,
         rgb_compressed: bytes | None = None,
         depth_compressed: bytes | None = None,
+        responses: ArrayLike | None = None,
     ) -> AddResult:
         """Create a location, quantise its descriptors, link it to the previous one, rehearse, update STM/WM.
 
-        ``odometry_transform`` is ``T_previous_new`` (computed from the poses when None).
+        ``odometry_transform`` is ``T_previous_new`` (computed from the poses when None). With ``max_words``,
+        only that many keypoints become words: the strongest by detector ``responses`` (the first ones without
+        them); the rest keep their descriptors for verification and carry word id -1.
         """
         pose_arr = np.asarray(pose, dtype=np.float64)
         keypoints_arr = np.asarray(keypoints, dtype=np.float32).reshape(-1, 2)
@@ -138,7 +157,9 @@ class Memory:
                 f"memory: {len(keypoints_arr)} keypoints, {len(points_arr)} points and {len(descriptors)} "
                 "descriptors must have the same length"
             )
-        word_ids = self.vocabulary.quantize(descriptors, add=True)
+        word_ids = np.full(len(descriptors), -1, np.int64)
+        chosen = self._word_keypoints(len(descriptors), responses)
+        word_ids[chosen] = self.vocabulary.quantize(np.asarray(descriptors)[chosen], add=True)
         signature = Signature(
             id=self._next_id,
             stamp=float(stamp),
@@ -213,19 +234,19 @@ class Memory:
             idf = math.log10(n_locations / len(refs))
             for location_id, occurrences in refs.items():
                 if location_id in scores:
-                    scores[location_id] += occurrences / self.signatures[location_id].word_ids.size * idf
+                    scores[location_id] += occurrences / self.signatures[location_id].word_count * idf
         return scores
 
     def bag_of_words(self, location_id: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """A location's words and their TF-IDF weights ``(n_w / n) · log10(N / N_w)``: n_w its occurrences of
         w, n its word count, N every location in memory, N_w those referencing w. Empty when unknown."""
         signature = self.signatures.get(location_id)
-        if signature is None or signature.word_ids.size == 0:
+        if signature is None or signature.word_count == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.float64)
         words, counts = np.unique(signature.word_ids[signature.word_ids >= 0], return_counts=True)
         locations = max(len(self.signatures), 1)
         idf = np.array([math.log10(locations / max(len(self.vocabulary.references(int(w))), 1)) for w in words])
-        return words, counts / signature.word_ids.size * idf
+        return words, counts / max(signature.word_count, 1) * idf
 
     # ------------------------------------------------------------------ transfer and retrieval
     def retrieval_candidates(self, around_id: int, max_count: int | None = None) -> list[int]:
@@ -310,6 +331,7 @@ class Memory:
         max_wm_size: int = 0,
         max_retrieved: int = 2,
         keep_images: bool = True,
+        max_words: int = 0,
     ) -> Memory:
         """Rebuild a memory from a database.
 
@@ -329,6 +351,7 @@ class Memory:
             max_retrieved=max_retrieved,
             keep_images=keep_images,
             map_id=max_map + 1 if new_session else max(max_map, 0),
+            max_words=max_words,
         )
         memory.signatures = signatures
         for link in links:

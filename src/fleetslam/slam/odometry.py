@@ -60,6 +60,8 @@ class OdometryResult:
     points3d: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     """Their 3D points in the camera frame."""
     descriptors: NDArray[Any] = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
+    responses: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
+    """Their detector responses (strength)."""
     coasting: bool = False
     """Visual tracking failed and the pose follows the wheel odometry; the map is kept."""
     map_restarted: bool = False
@@ -744,6 +746,7 @@ class VisualOdometry:
             keypoints=frame.features.keypoints[valid],
             points3d=frame.points[valid].astype(np.float32),
             descriptors=frame.features.descriptors[valid],
+            responses=frame.features.responses[valid],
             coasting=coasting,
         )
 

@@ -244,6 +244,7 @@ class SlamPipeline:
                 result.descriptors,
                 odometry_transform=odometry_transform,
                 odometry_information=self.odometry_information,
+                responses=result.responses,
             )
             node = int(hypothesis.query_id)
             mem = self.detector.memory

@@ -71,6 +71,11 @@ class Signature:
     """Encoded depth image (16-bit PNG bytes) or None."""
     label: str = ""
 
+    @property
+    def word_count(self) -> int:
+        """Keypoints quantised to a word (the others carry -1: beyond the location's word budget)."""
+        return int(np.count_nonzero(self.word_ids >= 0))
+
     def word_counts(self) -> Counter[int]:
         """Occurrences of each visual word in this location (word id -> count)."""
         return Counter(int(w) for w in self.word_ids if w >= 0)
