@@ -1,6 +1,7 @@
 """The live figure: `fleetslam demo` with its defaults, the operator console open in headless Chromium, for a fixed
 time on this machine; one JSON line with each robot's ATE (SLAM vs ground truth), its SLAM frame counts (received,
-processed, dropped; relocalisations, loop closures) and each process's CPU and memory, against the target.
+processed, dropped; relocalisations, loop closures), each process's CPU and memory, the browser's CPU and the whole
+machine's load (% of all cores), against the target.
 
 Peer: the same run's ground-truth-free baseline, each robot's wheel odometry (what the robot would know without
 SLAM), so the ratio says what SLAM adds under load. Target: ATE ≤ 3.0 cm for every robot in a 300 s run.
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import socket
 import sys
@@ -34,8 +36,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _browse(url: str, stop: threading.Event, out: Path, log: list[str]) -> None:
-    """Keep the console open in headless Chromium until ``stop``; a screenshot at the end."""
+def _browse(url: str, stop: threading.Event, out: Path, log: list[str], usage: dict[str, float]) -> None:
+    """Keep the console open in headless Chromium until ``stop``; its CPU (% of one core while open) in ``usage``,
+    a screenshot at the end."""
     from playwright.sync_api import sync_playwright
 
     chromium = shutil.which("chromium") or "/usr/bin/chromium"
@@ -48,10 +51,52 @@ def _browse(url: str, stop: threading.Event, out: Path, log: list[str]) -> None:
         page.on("pageerror", lambda e: log.append(f"page error: {e}"))
         page.goto(url)
         log.append(f"console open at {url}")
+        opened = time.monotonic()
         while not stop.wait(1.0):
             pass
+        usage["browser_cpu_percent"] = round(100.0 * browser_cpu_s() / max(time.monotonic() - opened, 1e-9), 1)
         page.screenshot(path=str(out / "console.png"))
         context.close()
+
+
+def _descendants(root: int) -> list[int]:
+    """Every process below ``root`` (from ``/proc``)."""
+    parent: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        parent[int(stat.parent.name)] = int(text[text.rindex(")") + 2 :].split()[1])
+    found, frontier = [], [root]
+    while frontier:
+        children = [pid for pid, ppid in parent.items() if ppid in frontier]
+        found += children
+        frontier = children
+    return found
+
+
+def browser_cpu_s() -> float:
+    """CPU seconds used so far by the Chromium processes this benchmark started (with their reaped children)."""
+    from fleetslam.launch.supervisor import sample_process
+
+    total = 0.0
+    for pid in _descendants(os.getpid()):
+        try:
+            name = Path(f"/proc/{pid}/comm").read_text().strip()
+        except OSError:
+            continue
+        sample = sample_process(pid) if "chrom" in name else None
+        total += sample.cpu_s if sample is not None else 0.0
+    return total
+
+
+def machine_cpu() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole machine since boot, all cores (``/proc/stat``)."""
+    fields = [float(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    ticks = os.sysconf("SC_CLK_TCK")
+    idle = fields[3] + fields[4]
+    return (sum(fields) - idle) / ticks, sum(fields) / ticks
 
 
 def wheel_ate(out: Path, robot: str) -> float | None:
@@ -89,23 +134,26 @@ def main(argv: list[str] | None = None) -> int:
     port = args.port or _free_port()
     stop_browser = threading.Event()
     browser_log: list[str] = []
+    browser_usage: dict[str, float] = {}
     browser = None
     if not args.no_browser:
 
         def start_browser() -> None:
             time.sleep(15.0)  # the console server starts after the simulated plant is prepared
             try:
-                _browse(f"http://127.0.0.1:{port}/", stop_browser, args.out, browser_log)
+                _browse(f"http://127.0.0.1:{port}/", stop_browser, args.out, browser_log, browser_usage)
             except Exception as err:  # the figure is still worth having; the JSON line says the browser failed
                 browser_log.append(f"browser failed: {err}")
 
         browser = threading.Thread(target=start_browser, daemon=True)
         browser.start()
     started = time.time()
+    busy_start, total_start = machine_cpu()
     result = run_demo(
         robots=["c3po", "r2d2"], duration_s=args.duration, out_dir=args.out, port=port,
         router_port=_free_port(), headless=args.no_browser, output=sys.stderr,
     )  # fmt: skip
+    busy_end, total_end = machine_cpu()
     stop_browser.set()
     if browser is not None:
         browser.join(30.0)
@@ -118,6 +166,9 @@ def main(argv: list[str] | None = None) -> int:
         "browser_log": browser_log,
         "ate_cm": {robot: round(value * 100, 2) for robot, value in sorted(result.ate.items())},
         "processes": json.loads(processes_file.read_text()) if processes_file.is_file() else None,
+        **browser_usage,
+        "machine_cpu_percent": round(100.0 * (busy_end - busy_start) / max(total_end - total_start, 1e-9), 1),
+        "cores": os.cpu_count(),
         "report": str(args.out / "report.md"),
         "target_ate_cm_max": TARGET_ATE_CM,
     }

@@ -5,9 +5,9 @@ SLAM node and a mapping node (its own processes, its own namespace), a fleet map
 from their known start poses, and the console. ``mode="synthetic"``: agents that only exchange keyframe graphs
 (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
-truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``processes.json`` (CPU and peak
-memory of every process over the run), ``report.md``/``report.html`` (with each robot's SLAM figures from its
-latest ``slam/diagnostics``) and plots.
+truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's
+latest ``slam/diagnostics``), ``processes.json`` (CPU and peak memory of every process over the run),
+``report.md``/``report.html`` (with each robot's SLAM figures from its latest ``slam/diagnostics``) and plots.
 """
 
 from __future__ import annotations
@@ -486,6 +486,7 @@ def write_results(result: DemoResult) -> None:
     out = result.out_dir
     (out / "statistics.json").write_text(json.dumps([r.as_dict() for r in result.rows], indent=1))
     (out / "processes.json").write_text(json.dumps([p.as_dict() for p in result.processes], indent=1))
+    (out / "slam.json").write_text(json.dumps(result.slam, indent=1))
     lines = [
         "# fleetslam demo report",
         "",
