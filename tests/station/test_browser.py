@@ -26,6 +26,8 @@ def test_console_in_chromium(
         first_frame = page.evaluate("window.fleetslam.lastFrameSeq")
         page.wait_for_function(f"window.fleetslam.lastFrameSeq > {first_frame}", timeout=10000)
         assert page.evaluate("window.fleetslam.selected") == "c3po"
+        # The test browser draws with SwiftShader (no GPU): the view must know it and spare the CPU.
+        assert page.evaluate("window.fleetslam.softwareGL") is True
         # Hold the deadman (Space) and W: forward commands reach the robot.
         page.keyboard.down("Space")
         page.keyboard.down("w")

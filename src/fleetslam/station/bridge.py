@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +41,8 @@ class AgentView:
     paths: dict[str, list[list[float]]] = field(default_factory=dict)
     keyframes: list[list[float]] = field(default_factory=list)
     last_image: dict[str, float] = field(default_factory=dict)
+    last_pose: dict[str, float] = field(default_factory=dict)
+    """When each pose source was last sent to the browsers (monotonic s)."""
     image_seq: int = 0
 
 
@@ -54,6 +57,7 @@ class StationBridge:
         limits: TeleopLimits | None = None,
         voxel_resolution: float = 0.05,
         image_rate_hz: float = 5.0,
+        pose_rate_hz: float = 10.0,
         wanted_cameras: Callable[[], set[tuple[str, str]]] = lambda: set(),
     ) -> None:
         self.node = Node("station", context=context, namespace="/")
@@ -61,6 +65,8 @@ class StationBridge:
         self.gate = TeleopGate(limits or TeleopLimits())
         self.voxel_resolution = voxel_resolution
         self.image_period = 1.0 / image_rate_hz
+        # Odometry arrives at 50 Hz from three sources per robot; the view draws at most ten times a second.
+        self.pose_period = 1.0 / pose_rate_hz
         self.wanted_cameras = wanted_cameras
         self.agents: dict[str, AgentView] = {}
         self.stats = StatsTable()
@@ -147,7 +153,10 @@ class StationBridge:
         if not path or (path[-1][0] - p.x) ** 2 + (path[-1][1] - p.y) ** 2 > 0.0025:
             path.append([round(p.x, 3), round(p.y, 3), round(p.z, 3)])
             del path[:-5000]
-        self.emit({"type": "pose", "agent": view.name, "source": source, **pose}, None)
+        now = time.monotonic()
+        if now - view.last_pose.get(source, -math.inf) >= self.pose_period:
+            view.last_pose[source] = now
+            self.emit({"type": "pose", "agent": view.name, "source": source, **pose}, None)
 
     def _on_path(self, view: AgentView, source: str, msg: Any) -> None:
         points = [[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in msg.poses]

@@ -12,8 +12,20 @@ window.fleetslam = state; // for tests and the curious
 
 // ---------------------------------------------------------------- 3D view
 const container = document.getElementById("view3d");
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
+// Without a GPU (SwiftShader, llvmpipe) every fragment is computed on the CPU the robots' SLAM needs: there the view
+// is drawn at half resolution without multisampling (a quarter of the pixels, one sample each). Measured in
+// headless Chromium on two cores with the demo's maps: 85 % of a core for the page at full resolution with 4×
+// multisampling, drawing five times a second.
+function softwareGL() {
+  const gl = document.createElement("canvas").getContext("webgl2") || document.createElement("canvas").getContext("webgl");
+  const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+  const name = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : "";
+  return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+}
+const SOFTWARE_GL = softwareGL();
+const renderer = new THREE.WebGLRenderer({ antialias: !SOFTWARE_GL });
+renderer.setPixelRatio(SOFTWARE_GL ? 0.5 : window.devicePixelRatio);
+state.softwareGL = SOFTWARE_GL;
 container.appendChild(renderer.domElement);
 const scene = new THREE.Scene();
 scene.background = new THREE.Color("#0f141a");
@@ -57,29 +69,36 @@ function heightColor(z, out) {
 function view(agent) {
   let v = agentViews.get(agent);
   if (v) return v;
-  v = { voxels: new Map(), mesh: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
+  v = { voxels: new Map(), cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
   agentViews.set(agent, v);
   return v;
 }
-const cubeGeometry = new THREE.BoxGeometry(1, 1, 1);
+// Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
+// a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
+// lit triangles each took most of a core at ten frames a second; a sprite is one quad.
 function rebuildVoxels(agent, v) {
-  if (v.mesh) { scene.remove(v.mesh); v.mesh.dispose(); }
+  if (v.cloud) { scene.remove(v.cloud); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
   const n = v.voxels.size;
-  const material = new THREE.MeshLambertMaterial({ transparent: agent === "fleet", opacity: agent === "fleet" ? 0.35 : 1 });
-  const mesh = new THREE.InstancedMesh(cubeGeometry, material, Math.max(n, 1));
-  const m = new THREE.Matrix4(), c = new THREE.Color();
+  const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
+  const c = new THREE.Color();
   let i = 0;
   for (const [x, y, z] of v.voxels.values()) {
-    m.makeScale(v.size * 0.96, v.size * 0.96, v.size * 0.96).setPosition(x, y, z);
-    mesh.setMatrixAt(i, m);
-    mesh.setColorAt(i, heightColor(z, c));
-    i++;
+    positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
+    heightColor(z, c);
+    colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
+    i += 3;
   }
-  mesh.count = n;
-  mesh.instanceMatrix.needsUpdate = true;
-  if (mesh.instanceColor) mesh.instanceColor.needsUpdate = true;
-  scene.add(mesh);
-  v.mesh = mesh;
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+  geometry.setAttribute("color", new THREE.BufferAttribute(colors, 3));
+  const fleet = agent === "fleet";
+  const material = new THREE.PointsMaterial({
+    size: v.size, sizeAttenuation: true, vertexColors: true,
+    transparent: fleet, opacity: fleet ? 0.35 : 1, depthWrite: !fleet,
+  });
+  const points = new THREE.Points(geometry, material);
+  scene.add(points);
+  v.cloud = points;
   v.dirty = false;
 }
 function onVoxels(msg) {
@@ -100,9 +119,17 @@ function lineFor(points, color, dashed) {
   if (dashed) line.computeLineDistances();
   return line;
 }
+function removeLine(v, name) {
+  const line = v.paths[name];
+  if (!line) return;
+  scene.remove(line);
+  line.geometry.dispose();
+  line.material.dispose();
+  delete v.paths[name];
+}
 function onPath(msg) {
   const v = view(msg.agent);
-  if (v.paths[msg.source]) scene.remove(v.paths[msg.source]);
+  removeLine(v, msg.source);
   const color = new THREE.Color(agentColor(msg.agent));
   if (msg.source === "truth") color.multiplyScalar(0.55);
   v.paths[msg.source] = lineFor(msg.points, color, msg.source === "truth");
@@ -136,40 +163,62 @@ function onPose(msg) {
   if (!last || Math.hypot(last[0] - msg.x, last[1] - msg.y) > 0.05) {
     trail.push([msg.x, msg.y, msg.z]);
     if (!v.pathsFromTopic || !v.pathsFromTopic[source]) {
-      if (v.paths["trail-" + source]) scene.remove(v.paths["trail-" + source]);
-      const color = new THREE.Color(agentColor(msg.agent));
-      if (source === "truth") color.multiplyScalar(0.55);
-      v.paths["trail-" + source] = lineFor(trail, color, source === "truth");
-      scene.add(v.paths["trail-" + source]);
+      v.trailsChanged = v.trailsChanged || new Set();
+      v.trailsChanged.add(source);
     }
   }
 }
-function frustum(color) {
-  const s = 0.18, d = 0.25;
-  const pts = [[0, 0, 0], [s, s * 0.75, d], [0, 0, 0], [-s, s * 0.75, d], [0, 0, 0], [s, -s * 0.75, d], [0, 0, 0], [-s, -s * 0.75, d],
-    [s, s * 0.75, d], [-s, s * 0.75, d], [-s, s * 0.75, d], [-s, -s * 0.75, d], [-s, -s * 0.75, d], [s, -s * 0.75, d], [s, -s * 0.75, d], [s, s * 0.75, d]];
-  const geometry = new THREE.BufferGeometry().setFromPoints(pts.map((p) => new THREE.Vector3(...p)));
-  return new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ color, transparent: true, opacity: 0.7 }));
+// Trails are redrawn at most once a second: poses arrive at 50 Hz from three sources per robot, and a trail of
+// thousands of points rebuilt on every one of them kept a core busy.
+const TRAIL_INTERVAL_MS = 1000;
+function redrawTrails(now) {
+  for (const [agent, v] of agentViews) {
+    if (!v.trailsChanged || !v.trailsChanged.size || now - (v.trailsDrawn || -Infinity) < TRAIL_INTERVAL_MS) continue;
+    for (const source of v.trailsChanged) {
+      removeLine(v, "trail-" + source);
+      const color = new THREE.Color(agentColor(agent));
+      if (source === "truth") color.multiplyScalar(0.55);
+      v.paths["trail-" + source] = lineFor(v.trail[source], color, source === "truth");
+      scene.add(v.paths["trail-" + source]);
+    }
+    v.trailsChanged.clear();
+    v.trailsDrawn = now;
+    state.sceneChanged = true;
+  }
 }
+// One camera frustum in the keyframe's frame: apex at the origin, looking along +z (16 points, 8 segments).
+const FRUSTUM = (() => {
+  const w = 0.18, h = 0.18 * 0.75, d = 0.25;
+  return [[0, 0, 0], [w, h, d], [0, 0, 0], [-w, h, d], [0, 0, 0], [w, -h, d], [0, 0, 0], [-w, -h, d],
+    [w, h, d], [-w, h, d], [-w, h, d], [-w, -h, d], [-w, -h, d], [w, -h, d], [w, -h, d], [w, h, d]];
+})();
+// All keyframes of an agent in one set of line segments (one draw call and one buffer, replaced when the graph
+// is): a graph of hundreds of keyframes arrives every second.
 function onKeyframes(msg) {
   const v = view(msg.agent);
-  if (v.keyframes) scene.remove(v.keyframes);
-  const group = new THREE.Group();
-  const color = agentColor(msg.agent);
+  if (v.keyframes) { scene.remove(v.keyframes); v.keyframes.geometry.dispose(); v.keyframes.material.dispose(); }
+  const positions = new Float32Array(msg.poses.length * FRUSTUM.length * 3);
+  const q = new THREE.Quaternion(), p = new THREE.Vector3();
+  let i = 0;
   for (const [x, y, z, qx, qy, qz, qw] of msg.poses) {
-    const f = frustum(color);
-    f.position.set(x, y, z);
-    f.quaternion.set(qx, qy, qz, qw);
-    group.add(f);
+    q.set(qx, qy, qz, qw);
+    for (const corner of FRUSTUM) {
+      p.set(corner[0], corner[1], corner[2]).applyQuaternion(q);
+      positions[i++] = p.x + x; positions[i++] = p.y + y; positions[i++] = p.z + z;
+    }
   }
-  v.keyframes = group;
-  scene.add(group);
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+  const material = new THREE.LineBasicMaterial({ color: agentColor(msg.agent), transparent: true, opacity: 0.7 });
+  v.keyframes = new THREE.LineSegments(geometry, material);
+  scene.add(v.keyframes);
 }
-// The 3D view is drawn when something in it changed (map, poses, paths, keyframes, the viewpoint), at most ten
-// times a second: the data arrives about once a second, and on a machine without a GPU (software GL) every frame
-// costs tens of milliseconds of CPU that the robots' SLAM needs. (Drawing at the display's 60 Hz took 80 % of a
-// core in headless Chromium.)
-const RENDER_INTERVAL_MS = 100;
+// The 3D view is drawn when something in it changed (map, poses, paths, keyframes, the viewpoint), at most five
+// times a second: the data arrives about once a second (poses ten times), and on a machine without a GPU (software
+// GL) every frame costs tens of milliseconds of CPU that the robots' SLAM needs. Measured in headless Chromium on
+// two cores with the demo's maps: the whole browser took 88 % of a core drawing ten times a second, 53 % once a
+// second; at the display's 60 Hz it took 80 % for the 3D view alone.
+const RENDER_INTERVAL_MS = 200;
 let lastRender = -Infinity;
 state.sceneChanged = true;
 controls.addEventListener("change", () => { state.sceneChanged = true; });
@@ -177,6 +226,7 @@ window.addEventListener("resize", () => { state.sceneChanged = true; });
 function animate(now) {
   requestAnimationFrame(animate);
   if (now - lastRender < RENDER_INTERVAL_MS) return;
+  redrawTrails(now);
   let total = 0;
   for (const [agent, v] of agentViews) {
     if (v.dirty) { rebuildVoxels(agent, v); state.sceneChanged = true; }
