@@ -131,6 +131,19 @@ def test_supervisor_prefixes_output_and_restarts_with_backoff() -> None:
     assert elapsed >= 0.1 + 0.2 + 0.4  # back-off doubled and capped
 
 
+def test_supervisor_starts_a_process_at_its_niceness() -> None:
+    out = io.StringIO()
+    specs = [
+        ProcessSpec(label=f"n{n}", host="localhost", argv=_py("import os; print('niceness', os.nice(0))"),
+                    environment={}, restart=RestartPolicy(), niceness=n)
+        for n in (0, 7)
+    ]  # fmt: skip
+    Supervisor(specs, output=out, grace_s=1.0).run(poll_interval_s=0.02)
+    base = os.nice(0)
+    assert f"[n0] niceness {base}" in out.getvalue()
+    assert f"[n7] niceness {min(base + 7, 19)}" in out.getvalue()
+
+
 def test_launch_cli_stops_children_on_ctrl_c(tmp_path: Path) -> None:
     marker = tmp_path / "child.pid"
     child = f"import os, time; open({str(marker)!r}, 'w').write(str(os.getpid())); time.sleep(60)"

@@ -153,6 +153,8 @@ class ProcessSpec(ConfigModel):
     """Environment variables set for it (on top of the host's)."""
     restart: RestartPolicy
     """Restart policy."""
+    niceness: int = Field(default=0, ge=0, le=19)
+    """Added to the launcher's scheduling niceness (0: the same priority; higher yields the CPU to the others)."""
 
 
 def _ros_args(node: NodeSpec) -> list[str]:

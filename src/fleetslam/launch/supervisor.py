@@ -298,6 +298,19 @@ class Supervisor:
             managed.next_start_at = None
 
     # -- internals -------------------------------------------------------------------------------------
+    def _child_setup(self, niceness: int) -> Callable[[], None] | None:
+        """The ``preexec_fn`` of a child: the parent-death signal, and its niceness (run in the child)."""
+        death_signal = self._preexec
+        if niceness == 0:
+            return death_signal
+
+        def setup() -> None:
+            if death_signal is not None:
+                death_signal()
+            os.nice(niceness)
+
+        return setup
+
     def _start(self, managed: _Managed, now: float) -> None:
         spec = managed.spec
         env = {**os.environ, **spec.environment, "PYTHONUNBUFFERED": "1"}
@@ -309,7 +322,7 @@ class Supervisor:
                 stderr=subprocess.PIPE,
                 stdin=subprocess.DEVNULL,
                 start_new_session=True,
-                preexec_fn=self._preexec,
+                preexec_fn=self._child_setup(spec.niceness),
             )
         except OSError as err:
             self._emit(spec.label, f"cannot start {spec.argv[0]!r}: {err.strerror}")
