@@ -227,6 +227,8 @@ class Memory:
                 scores[location_id] = word_set_similarity(signature, self.signatures[location_id])
             return scores
         n_locations = len(self.wm) + len(self.stm)
+        # A location's word count, once per location rather than once per shared word.
+        word_count = {location_id: self.signatures[location_id].word_count for location_id in scores}
         for word in signature.word_counts():
             refs = self.vocabulary.references(word)
             if not refs:
@@ -234,7 +236,7 @@ class Memory:
             idf = math.log10(n_locations / len(refs))
             for location_id, occurrences in refs.items():
                 if location_id in scores:
-                    scores[location_id] += occurrences / self.signatures[location_id].word_count * idf
+                    scores[location_id] += occurrences / word_count[location_id] * idf
         return scores
 
     def bag_of_words(self, location_id: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:

@@ -182,6 +182,16 @@ class _WindowKeyframe:
     """The wheel odometry's camera pose at this keyframe (``T_odom_camera``), when known."""
 
 
+def wheel_motion_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[float, float]:
+    """How far off the wheels' measure of a motion is: translation (m) and rotation (rad) standard deviations,
+    ``wheel_drift`` of the distance and of the turn (slip), plus 3 mm and 0.2° (timing between the wheel and camera
+    stamps)."""
+    return (
+        wheel_drift * float(np.linalg.norm(motion[:3, 3])) + 3e-3,
+        wheel_drift * rotation_angle(motion) + np.radians(0.2),
+    )
+
+
 class VisualOdometry:
     """RGB-D frame-to-local-map odometry. ``track`` is called once per frame, in order."""
 
@@ -229,10 +239,7 @@ class VisualOdometry:
         configured accelerations can change within the frame interval: ½·a·Δt²)."""
         if prior is not None and self._previous_prior is not None and self.config.use_prior:
             motion = invert(self._previous_prior) @ prior
-            std = (
-                self.config.wheel_drift * float(np.linalg.norm(motion[:3, 3])) + 3e-3,
-                self.config.wheel_drift * rotation_angle(motion) + np.radians(0.2),
-            )
+            std = wheel_motion_std(motion, self.config.wheel_drift)
             return _Prediction(self.constrain(self.pose @ motion), std, True)
         # The velocity itself comes from two noisy poses: its error (a few millimetres and tenths of a degree per
         # frame, whatever the rate) adds to what the acceleration can change. Without that floor, a tight prior at

@@ -21,10 +21,10 @@ from numpy.typing import NDArray
 
 from fleetslam.config import dump_config
 from fleetslam.datasets.base import RGBDFrame, RGBDSource
-from fleetslam.geometry import invert, rotation_angle
+from fleetslam.geometry import invert
 from fleetslam.slam.backend import PoseGraph, information_from_std, make_pose_graph
 from fleetslam.slam.config import SlamConfig
-from fleetslam.slam.odometry import OdometryResult, VisualOdometry, make_odometry
+from fleetslam.slam.odometry import OdometryResult, VisualOdometry, make_odometry, wheel_motion_std
 from fleetslam.trajectory import Trajectory, write_tum
 
 logger = logging.getLogger(__name__)
@@ -287,9 +287,8 @@ class SlamPipeline:
             return self.odometry_information * 0.01
         if not (result.coasting and result.map_restarted):
             return self.odometry_information
-        backend, drift = self.config.backend, self.config.odometry.wheel_drift
-        translation = drift * float(np.linalg.norm(transform[:3, 3])) + 3e-3
-        rotation = drift * rotation_angle(transform) + np.radians(0.2)
+        backend = self.config.backend
+        translation, rotation = wheel_motion_std(transform, self.config.odometry.wheel_drift)
         return information_from_std(
             float(np.hypot(backend.odometry_translation_std, translation)),
             float(np.hypot(np.radians(backend.odometry_rotation_std_deg), rotation)),
