@@ -2,7 +2,7 @@
 
 ``mode="sim"`` (the default): a router, the simulated plant with the robots driving autopilot routes, per robot a
 SLAM node and a mapping node (its own processes, its own namespace), a fleet map node fusing the robots' maps
-from their known start poses, and the console. ``mode="synthetic"``: agents that only exchange keyframe graphs
+from their known start poses, and the operator console (a process of its own). ``mode="synthetic"``: agents that only exchange keyframe graphs
 (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
 truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's
@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import socket
 import struct
 import sys
 import threading
@@ -34,7 +35,6 @@ from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
 from fleetslam.middleware import Context, Node, QoSProfile, Router
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
-from fleetslam.station.server import StationServer
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +130,23 @@ _ONE_NUMBA_THREAD = {"NUMBA_NUM_THREADS": "1"}
 #: The map nodes yield the CPU to SLAM and the simulated sensors: a map that lags a second costs nothing, a SLAM
 #: node starved while they compile their kernels at start dropped frames and drifted through its first lap.
 _MAP_NICENESS = 10
+
+
+def _station_process(router: str, port: int) -> ProcessSpec:
+    """The operator console in a process of its own: its encoding and WebSocket traffic are not the monitor's to
+    pay for (the report shows each), and a console that fails restarts without stopping the demo."""
+    return ProcessSpec(label="station", host="localhost", argv=_fleetslam("station", "--port", str(port)),
+                       environment={"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"},
+                       restart=RestartPolicy())  # fmt: skip
+
+
+def _accepts(port: int) -> bool:
+    """Whether something listens on ``port`` on loopback."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return True
+    except OSError:
+        return False
 
 
 def _sim_processes(
@@ -341,16 +358,14 @@ def run_demo(
         processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route)
     else:
         processes, extrinsics = _agent_processes(robots, endpoint), {}
+    if not headless:
+        processes.append(_station_process(endpoint, port))
+    console_url = None if headless else f"http://127.0.0.1:{port}/"
     with Router([endpoint]):
         log_file = open(out_dir / "processes.log", "w")  # noqa: SIM115
         supervisor = Supervisor(processes, output=log_file)
         with Context(router=endpoint, listen="tcp/127.0.0.1:0", namespace="/") as ctx:
             monitor = _Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
-            station = None
-            if not headless:
-                station = StationServer(ctx, port=port)
-                station.start()
-                print(f"operator console: {station.url}", file=output, flush=True)
             start = time.monotonic()
             own_start = sample_process(os.getpid())
             supervisor_thread = threading.Thread(target=supervisor.run, kwargs={"poll_interval_s": 0.2}, daemon=True)
@@ -360,6 +375,9 @@ def run_demo(
                     if stop.wait(1.0):
                         print("[demo] stopping", file=output, flush=True)
                         break
+                    if console_url is not None and _accepts(port):
+                        print(f"operator console: {console_url}", file=output, flush=True)
+                        console_url = None
                     elapsed = time.monotonic() - start
                     with monitor.lock:
                         totals = monitor.table.per_agent()
@@ -378,15 +396,12 @@ def run_demo(
             usage = supervisor.usage()
             own_end = sample_process(os.getpid())
             if own_start is not None and own_end is not None:
-                label = "demo (router, monitor" + (")" if headless else ", console)")
-                usage.insert(0, ProcessUsage.between(label, os.getpid(), own_start, own_end))
+                usage.insert(0, ProcessUsage.between("demo (router, monitor)", os.getpid(), own_start, own_end))
             if mode == "sim":
                 _save_maps(monitor.node, robots, out_dir / "maps", output)
             supervisor.stop()
             supervisor_thread.join(10)
             log_file.close()
-            if station is not None:
-                station.stop()
             monitor.close()
             elapsed = time.monotonic() - start
     with monitor.lock:
