@@ -71,3 +71,27 @@ def test_without_wheels_a_blank_stretch_is_lost_and_the_map_restarts(textures: l
     results = [vo.track(blank, depth, 0.1 * (k + 1)) for k in range(config.lost_frames)]
     assert all(r.lost for r in results)
     assert not any(r.map_restarted for r in results[:-1]) and results[-1].map_restarted
+
+
+def test_local_mapping_after_the_pose_gives_the_same_track_whenever_it_runs(textures: list[np.ndarray]) -> None:
+    """The window's adjustment runs after a keyframe's pose is out (``local_mapping``), or at the start of the
+    next frame when the caller did not run it: the same poses either way."""
+    frames = [
+        (render(BASE @ pose_from_xyz_rpy(0.06 * k, 0.0, 0.01 * k, 0.0, np.radians(2.0 * k), 0.0), INTRINSICS,
+                textures), 0.1 * k)
+        for k in range(6)
+    ]  # fmt: skip
+    explicit, implicit = VisualOdometry(OdometryConfig(), INTRINSICS), VisualOdometry(OdometryConfig(), INTRINSICS)
+    adjusted = 0
+    for (rgb, depth), stamp in frames:
+        first = explicit.track(rgb, depth, stamp)
+        second = implicit.track(rgb, depth, stamp)
+        np.testing.assert_array_equal(first.pose, second.pose)
+        after = explicit.local_mapping()
+        if after is not None:
+            adjusted += 1
+            assert first.is_keyframe
+            # The adjustment moves the keyframe by what its window's errors were: a millimetre or less here.
+            assert np.linalg.norm(after[:3, 3] - first.pose[:3, 3]) < 0.005
+    assert adjusted >= 1  # 6 cm and 2° per frame: a keyframe after 25 cm, with a window to adjust
+    assert explicit.local_mapping() is None  # nothing left pending

@@ -315,9 +315,11 @@ class SlamNode:
         frame = RGBDFrame(self.frames, stamp_ns / 1e9, rgb, depth, prior=prior)
         self.frames += 1
         t0 = time.perf_counter()
-        step = self.pipeline.step(frame)
+        # The pose goes out as soon as it is tracked; local mapping and the graph follow (ORB-SLAM's order).
+        tracked = self.pipeline.track(frame)
+        self.publish_pose(stamp_ns, tracked.pose)
+        step = self.pipeline.finish(tracked)
         step_ms = (time.perf_counter() - t0) * 1e3
-        self.publish_pose(stamp_ns, step)
         self.publish_map_to_odom(stamp_ns, step, prior)
         if step.keyframe_id is not None:
             self.publish_keyframe(stamp_ns, step, frame)
@@ -372,15 +374,15 @@ class SlamNode:
                                                                 status=[status])  # fmt: skip
         self.diagnostics_pub.publish(array)
 
-    def publish_pose(self, stamp_ns: int, step: StepResult) -> None:
+    def publish_pose(self, stamp_ns: int, pose: np.ndarray) -> None:
         odom = message_from_dict(
             "nav_msgs/msg/Odometry",
-            {"child_frame_id": self.config.camera_frame, "pose": {"pose": _pose_dict(step.pose)}},
+            {"child_frame_id": self.config.camera_frame, "pose": {"pose": _pose_dict(pose)}},
         )
         odom.header = header(self.config.map_frame, stamp_ns)
         self.odom_pub.publish(odom)
         live = message_from_dict(
-            "fleetslam_msgs/msg/Keyframe", {"agent": self.agent, "id": self.frames, "pose": _pose_dict(step.pose)}
+            "fleetslam_msgs/msg/Keyframe", {"agent": self.agent, "id": self.frames, "pose": _pose_dict(pose)}
         )
         live.header = odom.header
         self.live_pub.publish(live)

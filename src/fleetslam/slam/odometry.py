@@ -2,13 +2,14 @@
 
 Each frame: ORB features are matched to the local map (landmarks with descriptors, in the odometry frame) near
 where a motion prediction projects them (the wheel odometry's motion when there is one, else constant velocity);
-the pose is found by robust motion-only optimisation of reprojection and depth residuals together with the
+the pose is found by robust motion-only optimisation of reprojection and depth residuals, point-to-plane residuals
+of the frame's depth against the newest keyframe's surface (the room's geometry, where texture is poor), and the
 prediction as a prior whose width follows the frame interval (RANSAC PnP only when the guided matches fail). A
 frame becomes a keyframe when it tracks too few of the map's landmarks, or moved or turned far enough from the last
 keyframe (distances, not frame counts: the decision does not depend on the camera rate). A keyframe adds its new
-landmarks, joins a window of recent keyframes, and the window is bundle-adjusted (poses and landmarks, RGB-D
-residuals; a ground robot's poses on its floor plane, tied by the wheels' relative motion), so that one frame's
-error does not become the next keyframe's map.
+landmarks and joins a window of recent keyframes; after its pose is out, :meth:`VisualOdometry.local_mapping`
+bundle-adjusts the window (poses and landmarks, RGB-D residuals; a ground robot's poses on its floor plane, tied by
+the wheels' relative motion), so that one frame's error does not become the next keyframe's map.
 
 When the features fail (a blank wall, motion blur, a dropped stretch of frames) with wheel odometry available, the
 pose follows the wheels and the map is kept (``coasting``), so tracking resumes on the same map; only after
@@ -35,6 +36,7 @@ from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
 from fleetslam.slam.pose_refinement import planar_basis, refine_pose, refine_pose_with_prior
+from fleetslam.slam.surface_alignment import KeyframeSurface, SurfaceTerm, depth_samples, sample_stride
 from fleetslam.slam.triangulation import match_and_triangulate
 
 logger = logging.getLogger(__name__)
@@ -180,6 +182,8 @@ class _WindowKeyframe:
     scales: NDArray[np.float64]
     prior: NDArray[np.float64] | None
     """The wheel odometry's camera pose at this keyframe (``T_odom_camera``), when known."""
+    surface: KeyframeSurface | None = None
+    """Its depth as vertices and normals, for the next frames' surface term."""
 
 
 def wheel_motion_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[float, float]:
@@ -231,6 +235,8 @@ class VisualOdometry:
         """Distance (m) followed on the wheels since the map last tracked."""
         self._candidates: _Candidates | None = None
         self._lost_frames = 0
+        self._adjustment_pending = False
+        self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
 
     # -- prediction ---------------------------------------------------------------------------------------------
     def _predict(self, prior: NDArray[np.float64] | None) -> _Prediction:
@@ -276,6 +282,7 @@ class VisualOdometry:
             prior: optional pose of this frame from wheel odometry (any fixed frame).
         """
         cv2 = import_cv2()
+        self.local_mapping()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         gray = rgb if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
@@ -293,7 +300,7 @@ class VisualOdometry:
         self._last_stamp = stamp
         prior_arr = None if prior is None else np.asarray(prior, dtype=np.float64)
         prediction = self._predict(prior_arr)
-        frame = _Frame(feats, points_cam, valid, prior_arr)
+        frame = _Frame(feats, points_cam, valid, prior_arr, depth if self._surface_stride else None)
         self.frames += 1
 
         if len(self.local_map) == 0:
@@ -409,6 +416,7 @@ class VisualOdometry:
         T_cw = invert(start)
         keep = np.ones(n, bool)
         fused: tuple[NDArray[np.float64], tuple[float, float]] | None = None
+        surface = self._surface_term(frame)
         for first in (True, False):
             idx = np.flatnonzero(keep)
             depth = (depths[idx], self.config.depth_noise)
@@ -417,13 +425,13 @@ class VisualOdometry:
                 T_cw, used = refine_pose_with_prior(
                     T_cw, points[idx], pixels[idx], self._K, invert(prediction.pose), prediction.std,
                     pixel_std=pixel_std[idx], huber_px=huber, iterations=4,
-                    gate=self.config.motion_prior_gate, basis=basis, depth=depth,
+                    gate=self.config.motion_prior_gate, basis=basis, depth=depth, surface=surface,
                 )  # fmt: skip
                 fused = (invert(prediction.pose), prediction.std) if used else None
             else:
                 T_cw = refine_pose(
                     T_cw, points[idx], pixels[idx], self._K, pixel_std=pixel_std[idx], huber_px=huber,
-                    iterations=4 if first else 3, basis=basis, depth=depth, prior=fused,
+                    iterations=4 if first else 3, basis=basis, depth=depth, prior=fused, surface=surface,
                 )  # fmt: skip
             chi2 = _chi2(T_cw, points, pixels, pixel_std, depths, self.config.depth_noise, self._K)
             # χ² at 95 % for 2 (no depth) or 3 (with depth) residuals, as ORB-SLAM's mono/stereo thresholds.
@@ -517,6 +525,7 @@ class VisualOdometry:
                 depths=np.where(frame.valid[observed], frame.points[observed, 2], 0.0),
                 scales=frame.features.scales[observed].astype(np.float64),
                 prior=frame.prior,
+                surface=self._keyframe_surface(frame),
             )
         )
         feats = frame.features
@@ -524,11 +533,46 @@ class VisualOdometry:
             self.window[-1], feats.keypoints[leftover].astype(np.float64), feats.descriptors[leftover],
             feats.scales[leftover].astype(np.float64),
         )  # fmt: skip
-        if len(self.window) >= 2 and self.config.window_keyframes >= 2:
-            pose = self._adjust_window()
+        # The window's adjustment is local mapping: it runs after the frame's pose is out (local_mapping()).
+        self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
         self._keyframe_tracked = int(frame.valid.sum())
         return pose
+
+    def local_mapping(self) -> NDArray[np.float64] | None:
+        """Bundle-adjust the window after a new keyframe (ORB-SLAM's local mapping: the keyframe's pose is
+        published first, the adjustment follows before the next frame is tracked); returns the keyframe's
+        adjusted pose, or None when nothing was pending. :meth:`track` runs a pending adjustment itself first, so
+        the results are the same whether or not the caller runs it in between."""
+        if not self._adjustment_pending:
+            return None
+        self._adjustment_pending = False
+        adjusted = orthonormalized(self.constrain(self._adjust_window()))
+        # The frame that became the keyframe is still the newest: its pose and the velocity follow the adjustment.
+        self._velocity = self._velocity @ invert(self.pose) @ adjusted
+        self.pose = adjusted
+        self._keyframe_pose = adjusted.copy()
+        return adjusted.copy()
+
+    def _keyframe_surface(self, frame: _Frame) -> KeyframeSurface | None:
+        if frame.depth is None:
+            return None
+        return KeyframeSurface.from_depth(
+            frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
+        )
+
+    def _surface_term(self, frame: _Frame) -> SurfaceTerm | None:
+        """The point-to-plane term against the newest keyframe's surface; None when off or there is no surface."""
+        if frame.depth is None or not self.window:
+            return None
+        keyframe = self.window[-1]
+        if keyframe.surface is None:
+            return None
+        points = depth_samples(
+            frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
+        )
+        return SurfaceTerm(keyframe.surface, keyframe.pose, points, self.config.depth_noise,
+                           self.config.surface_std_scale)  # fmt: skip
 
     def _triangulate(
         self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
@@ -700,6 +744,7 @@ class VisualOdometry:
     def relocalize(self, result: OdometryResult, pose: NDArray[np.float64]) -> OdometryResult:
         """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
         from it: the local map is re-seeded with this frame's points at the corrected pose."""
+        self._adjustment_pending = False  # the window it would adjust is dropped
         self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
         self._velocity = np.eye(4)
         self.local_map.clear()
@@ -767,6 +812,8 @@ class _Frame:
     """(N, 3) camera-frame points of the keypoints (valid where ``valid``)."""
     valid: NDArray[np.bool_]
     prior: NDArray[np.float64] | None
+    depth: NDArray[np.float32] | None = None
+    """The depth image (for the surface term), when that term is on."""
 
 
 @dataclass

@@ -42,8 +42,23 @@ class SlamResult:
     loops_accepted: list[tuple[int, int]] = field(default_factory=list)
     loops_rejected: list[tuple[int, int]] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
-    """Odometry time per frame."""
+    """Tracking time per frame (the odometry up to the frame's pose; local mapping and the graph not included,
+    as they run after the pose is out: see ``stats["frames"]``' ``local_mapping_ms`` and ``keyframe_ms``)."""
     stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TrackedFrame:
+    """A frame between :meth:`SlamPipeline.track` and :meth:`SlamPipeline.finish`."""
+
+    stamp: float
+    odometry: OdometryResult
+    record: dict[str, Any]
+    """The frame's entry in the run's statistics (``SlamResult.stats["frames"]``)."""
+    relocalized: int | None
+    """The location it was relocalised on, if any."""
+    pose: NDArray[np.float64]
+    """``T_map_camera`` from the odometry and the graph as they stood: before local mapping and loop closure."""
 
 
 @dataclass
@@ -117,6 +132,11 @@ class SlamPipeline:
 
     def step(self, frame: RGBDFrame) -> StepResult:
         """Process one frame: track it, and on a keyframe add it to the graph and look for a loop."""
+        return self.finish(self.track(frame))
+
+    def track(self, frame: RGBDFrame) -> TrackedFrame:
+        """The frame's pose, as soon as the odometry has it (what a live node publishes); :meth:`finish` must
+        follow before the next frame."""
         t0 = time.perf_counter()
         result = self.odometry.track(frame.rgb, frame.depth, frame.stamp, frame.prior)
         t_odom = (time.perf_counter() - t0) * 1e3
@@ -134,17 +154,31 @@ class SlamPipeline:
         }
         if relocalized is not None:
             record["relocalized_on"] = relocalized
+        pose = result.pose
+        if self._last_kf is not None:
+            anchor = self.graph.optimize()[self._last_kf]
+            pose = anchor @ invert(self.keyframe_odometry[self._last_kf]) @ result.pose
+        return TrackedFrame(frame.stamp, result, record, relocalized, pose)
+
+    def finish(self, tracked: TrackedFrame) -> StepResult:
+        """Local mapping (the odometry window's adjustment) and, on a keyframe, the graph and loop closure."""
+        result, record = tracked.odometry, tracked.record
+        t0 = time.perf_counter()
+        adjusted = self.odometry.local_mapping()
+        if adjusted is not None:
+            result.pose = adjusted
+            record["local_mapping_ms"] = round((time.perf_counter() - t0) * 1e3, 3)
         new_keyframe = None
         loops_before = len(self._accepted)
         if result.is_keyframe or self._last_kf is None:
             t1 = time.perf_counter()
             self._last_kf = self._add_keyframe(
-                frame.stamp, result, self._last_kf, self.keyframe_odometry, self._accepted, self._rejected, record
+                tracked.stamp, result, self._last_kf, self.keyframe_odometry, self._accepted, self._rejected, record
             )
             new_keyframe = self._last_kf
-            self.keyframe_stamps[self._last_kf] = frame.stamp
+            self.keyframe_stamps[self._last_kf] = tracked.stamp
             record["keyframe_ms"] = round((time.perf_counter() - t1) * 1e3, 3)
-        self._stamps.append(frame.stamp)
+        self._stamps.append(tracked.stamp)
         self._odom_poses.append(result.pose)
         self._frame_keyframe.append(self._last_kf)
         self._per_frame.append(record)
@@ -155,7 +189,7 @@ class SlamPipeline:
             odometry=result,
             keyframe_id=new_keyframe,
             loop_closed=len(self._accepted) > loops_before,
-            relocalized=relocalized is not None,
+            relocalized=tracked.relocalized is not None,
         )
 
     def _relocalize(self, stamp: float, result: Any) -> int | None:
