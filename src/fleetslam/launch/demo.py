@@ -2,8 +2,9 @@
 
 ``mode="sim"`` (the default): a router, the simulated plant with the robots driving autopilot routes, per robot a
 SLAM node and a mapping node (its own processes, its own namespace), a fleet map node fusing the robots' maps
-from their known start poses, and the operator console (a process of its own). ``mode="synthetic"``: agents that only exchange keyframe graphs
-(``fleetslam.launch.example_agent``), the seed's network experiment, light enough for any machine.
+from their known start poses, and the operator console (a process of its own). ``mode="synthetic"``: agents that
+only exchange keyframe graphs (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for
+any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
 truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's
 latest ``slam/diagnostics``), ``processes.json`` (CPU and peak memory of every process over the run),
