@@ -27,6 +27,7 @@ import json
 import logging
 import math
 import os
+import signal
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -267,10 +268,27 @@ class Context:
         """Block until the context is closed, ``timeout_s`` passes, or Ctrl-C (which returns cleanly).
 
         Callbacks do not need it (they run on the nodes' executor threads); it only keeps the main thread alive.
+        In the main thread, Ctrl-C (SIGINT) only sets a flag while it spins: a KeyboardInterrupt raised inside the
+        wait's lock handling could leave the lock released twice, and a second signal (a supervisor that signals
+        the process and its group) would interrupt the handling of the first.
         """
+        interrupted = threading.Event()
+        previous = None
+        if threading.current_thread() is threading.main_thread():
+            previous = signal.signal(signal.SIGINT, lambda *_: interrupted.set())
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         try:
-            self._closed.wait(timeout_s)
-        except KeyboardInterrupt:
+            while not self._closed.is_set() and not interrupted.is_set():
+                left = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
+                if left <= 0:
+                    break
+                self._closed.wait(left)
+        except KeyboardInterrupt:  # a SIGINT handler installed by the program itself may still raise
+            interrupted.set()
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+        if interrupted.is_set():
             log.info("interrupted")
 
     def close(self) -> None:
