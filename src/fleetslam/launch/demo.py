@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import socket
 import struct
 import sys
 import threading
@@ -32,8 +31,9 @@ from numpy.typing import NDArray
 
 from fleetslam.geometry import quat_to_matrix
 from fleetslam.launch.description import ProcessSpec, RestartPolicy
+from fleetslam.launch.router_process import RouterProcess, accepts_connections
 from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
-from fleetslam.middleware import Context, Node, QoSProfile, Router
+from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
 
@@ -139,15 +139,6 @@ def _station_process(router: str, port: int) -> ProcessSpec:
     return ProcessSpec(label="station", host="localhost", argv=_fleetslam("station", "--port", str(port)),
                        environment={"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"},
                        restart=RestartPolicy())  # fmt: skip
-
-
-def _accepts(port: int) -> bool:
-    """Whether something listens on ``port`` on loopback."""
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-            return True
-    except OSError:
-        return False
 
 
 def _sim_processes(
@@ -362,7 +353,7 @@ def run_demo(
     if not headless:
         processes.append(_station_process(endpoint, port))
     console_url = None if headless else f"http://127.0.0.1:{port}/"
-    with Router([endpoint]):
+    with RouterProcess(endpoint) as router:
         log_file = open(out_dir / "processes.log", "w")  # noqa: SIM115
         supervisor = Supervisor(processes, output=log_file)
         with Context(router=endpoint, listen="tcp/127.0.0.1:0", namespace="/") as ctx:
@@ -376,7 +367,7 @@ def run_demo(
                     if stop.wait(1.0):
                         print("[demo] stopping", file=output, flush=True)
                         break
-                    if console_url is not None and _accepts(port):
+                    if console_url is not None and accepts_connections("127.0.0.1", port):
                         print(f"operator console: {console_url}", file=output, flush=True)
                         console_url = None
                     elapsed = time.monotonic() - start
@@ -397,7 +388,10 @@ def run_demo(
             usage = supervisor.usage()
             own_end = sample_process(os.getpid())
             if own_start is not None and own_end is not None:
-                usage.insert(0, ProcessUsage.between("demo (router, monitor)", os.getpid(), own_start, own_end))
+                usage.insert(0, ProcessUsage.between("demo (monitor)", os.getpid(), own_start, own_end))
+            router_usage = router.usage()
+            if router_usage is not None:
+                usage.insert(1, router_usage)
             if mode == "sim":
                 _save_maps(monitor.node, robots, out_dir / "maps", output)
             supervisor.stop()
