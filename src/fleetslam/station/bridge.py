@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from fleetslam.errors import MessageError
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.middleware.typesys import get_type
+from fleetslam.middleware.typesys import deserialize, get_type
 from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, pointcloud2_xyz, yaw_from_quaternion
 
 log = logging.getLogger(__name__)
@@ -113,11 +114,14 @@ class StationBridge:
         sub("nav_msgs/msg/Path", f"{ns}/path", lambda m: self._on_path(view, "slam", m), QoSProfile(depth=1))
         sub("fleetslam_msgs/msg/KeyframeGraph", f"{ns}/graph", lambda m: self._on_graph(view, m), QoSProfile(depth=1))
         for kind, topic in (("rgb", "camera/rgb/image_raw"), ("depth", "camera/depth/image_raw")):
+            # Raw: an image is decoded only when a console shows that camera and its period is due (the
+            # station otherwise deserialised every frame of every camera, ~8 MB/s in the demo, for nothing).
             sub(
                 "sensor_msgs/msg/Image",
                 f"{ns}/{topic}",
                 self._image_callback(view, kind),
                 QoSProfile(depth=1, reliability="best_effort"),
+                raw=True,
             )
         self._cmd_publishers[name] = self.node.create_publisher("geometry_msgs/msg/Twist", f"{ns}/cmd_vel")
         self._estop_clients[name] = self.node.create_client("std_srvs/srv/SetBool", f"{ns}/e_stop")
@@ -126,8 +130,8 @@ class StationBridge:
     def _odom_callback(self, view: AgentView, source: str) -> Callable[[Any], None]:
         return lambda msg: self._on_odom(view, source, msg)
 
-    def _image_callback(self, view: AgentView, kind: str) -> Callable[[Any], None]:
-        return lambda msg: self._on_image(view, kind, msg)
+    def _image_callback(self, view: AgentView, kind: str) -> Callable[[bytes], None]:
+        return lambda payload: self._on_image(view, kind, payload)
 
     def _on_cloud(self, view: AgentView, msg: Any) -> None:
         points = pointcloud2_xyz(msg)
@@ -171,7 +175,7 @@ class StationBridge:
         ]  # fmt: skip
         self.emit({"type": "keyframes", "agent": view.name, "poses": view.keyframes}, None)
 
-    def _on_image(self, view: AgentView, kind: str, msg: Any) -> None:
+    def _on_image(self, view: AgentView, kind: str, payload: bytes) -> None:
         if (view.name, kind) not in self.wanted_cameras():
             return
         now = time.monotonic()
@@ -179,8 +183,9 @@ class StationBridge:
             return
         view.last_image[kind] = now
         try:
+            msg = deserialize(payload, "sensor_msgs/msg/Image")
             mime, data = encode_image(msg, kind)
-        except ValueError as err:
+        except (ValueError, MessageError) as err:
             log.warning("%s %s image: %s", view.name, kind, err)
             return
         view.image_seq += 1
