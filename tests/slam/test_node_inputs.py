@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -75,3 +76,22 @@ def test_images_are_decoded_with_their_row_step_and_byte_order() -> None:
     short = image(height=4, width=3, encoding="rgb8", is_bigendian=0, step=9, data=np.zeros(20, np.uint8))
     with pytest.raises(ValueError, match="does not fit"):
         image_to_array(short)
+
+
+def test_save_map_writes_only_plain_names_inside_the_maps_directory(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    from fleetslam.middleware.typesys import get_type
+
+    SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig(maps_dir=str(tmp_path / "maps")))
+    save = Node("operator", context=make_context()).create_client("fleetslam_msgs/srv/SaveMap", "/c3po/slam/save_map")
+    assert save.wait_for_service(5.0)
+    request = get_type("fleetslam_msgs/srv/SaveMap_Request")
+    (tmp_path / "victim.db").write_text("keep me")
+    for path in (str(tmp_path / "victim.db"), "../victim.db", "nested/dir/map.db", "map.bt"):
+        response = save.call(request(path=path), timeout=10)
+        assert not response.success and "save path" in response.message, (path, response.message)
+    assert (tmp_path / "victim.db").read_text() == "keep me" and not (tmp_path / "nested").exists()
+    response = save.call(request(path="c3po.db"), timeout=10)  # a fair name: refused only for want of a map
+    assert not response.success and response.message.startswith("nothing to save yet")
+    assert Path(response.path) == tmp_path / "maps" / "c3po.db"

@@ -136,23 +136,27 @@ def _sim_processes(
     robots: list[str], router: str, out_dir: Path, resolution: str, camera_hz: float = 10.0, route: str = "loop"
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
     env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    maps_dir = f"maps_dir={(out_dir / 'maps').resolve()}"  # the only place the save services write to
     processes = []
     for robot in robots:
         agent_env = {**env, "FLEETSLAM_AGENT": robot}
         peers = "[" + ",".join(r for r in robots if r != robot) + "]"
         # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend.
         processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
-                                     argv=_fleetslam("slam", "node", "--set", f"peers={peers}"),
+                                     argv=_fleetslam("slam", "node", "--set", f"peers={peers}", "--set", maps_dir),
                                      environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
                                      restart=RestartPolicy()))  # fmt: skip
-        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
+        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost",
+                                     argv=_fleetslam("map", "node", "--set", maps_dir),
                                      environment={**agent_env, **_ONE_NUMBA_THREAD},
                                      restart=RestartPolicy(), niceness=_MAP_NICENESS))  # fmt: skip
     fleet_config = out_dir / "fleet_map.yaml"
     import yaml
 
     poses, extrinsics = start_poses(robots)
-    fleet_config.write_text(yaml.safe_dump({"start_poses": poses, "agents": robots}))
+    fleet_config.write_text(
+        yaml.safe_dump({"start_poses": poses, "agents": robots, "maps_dir": str((out_dir / "maps").resolve())})
+    )
     processes.append(ProcessSpec(label="fleet_map", host="localhost",
                                  argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
                                  environment={**env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy(),
@@ -381,7 +385,7 @@ def run_demo(
                 label = "demo (router, monitor" + (")" if headless else ", console)")
                 usage.insert(0, ProcessUsage.between(label, os.getpid(), own_start, own_end))
             if mode == "sim":
-                _save_maps(monitor.node, robots, out_dir / "maps", output)
+                _save_maps(monitor.node, robots, output)
             supervisor.stop()
             supervisor_thread.join(10)
             log_file.close()
@@ -401,14 +405,15 @@ def run_demo(
     return result
 
 
-def _save_maps(node: Node, robots: list[str], maps_dir: Path, output: TextIO) -> None:
+def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
+    """Ask every map node to save its map as ``<name>.bt`` in its maps directory (the demo's ``maps/``)."""
     from fleetslam.middleware.typesys import get_type
 
     request = get_type("fleetslam_msgs/srv/SaveMap_Request")
     for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:
         client = node.create_client("fleetslam_msgs/srv/SaveMap", service)
         try:
-            response = client.call(request(path=str(maps_dir / f"{name}.bt")), timeout=30.0)
+            response = client.call(request(path=f"{name}.bt"), timeout=30.0)
             print(f"[demo] map {name}: {response.message} -> {response.path}", file=output, flush=True)
         except Exception as err:  # a node that never got data answers late or not at all
             print(f"[demo] map {name} not saved: {err}", file=output, flush=True)
