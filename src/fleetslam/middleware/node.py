@@ -395,7 +395,10 @@ class Subscription(_Entity):
                 self.statistics.on_error(gid, size)
                 errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
                 return
-            self.publisher_types[gid] = type_name
+            types = self.publisher_types  # as bounded as the statistics: GIDs are forgeable
+            if gid not in types and len(types) >= self.statistics.max_publishers:
+                del types[next(iter(types))]
+            types[gid] = type_name
         self.statistics.on_sample(gid, seq, stamp, received, size)
         info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
         payload = zpayload.to_bytes()
