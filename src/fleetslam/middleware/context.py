@@ -16,7 +16,10 @@ Environment (explicit constructor arguments win):
 
 The default session is rmw_zenoh's: peer mode connected to the router, multicast scouting off, gossip on,
 timestamping on, queries time out after 600 s (plus ``scouting/delay`` 0: open() does not idle 500 ms, the
-context waits for the router itself). Without a reachable router the context raises
+context waits for the router itself), and messages larger than :data:`MAX_MESSAGE_BYTES` refused by the
+transport while they arrive, before they are reassembled (``transport/link/rx/max_message_size``; with Zenoh's
+own default, 1 GiB, one peer made the router and every subscriber hold 300 MB for good; now a refused message
+costs at most the limit, which the transport keeps for reuse). Without a reachable router the context raises
 :class:`~fleetslam.errors.RouterUnreachableError` at once, saying how to start one.
 """
 
@@ -47,6 +50,9 @@ log = logging.getLogger(__name__)
 DEFAULT_ROUTER = "tcp/localhost:7447"
 DEFAULT_LISTEN = "tcp/localhost:0"
 DEFAULT_ROUTER_TIMEOUT_S = 2.0
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+"""Largest message a default session or router accepts (a 640×480 RGB image is 0.9 MB, 1920×1080 6.2 MB, a room's
+octree a few MB). Raise it with ``ZENOH_CONFIG_OVERRIDE='transport/link/rx/max_message_size=<bytes>'`` on every host."""
 
 
 def split_endpoints(text: str | Sequence[str]) -> list[str]:
@@ -106,6 +112,7 @@ def session_config(
         config.insert_json5("scouting/delay", "0")
         config.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
         config.insert_json5("queries_default_timeout", "600000")
+        config.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
         connect = connect or []
         listen = listen or []
     if connect is not None:

@@ -2,8 +2,10 @@
 
 A session opened in ``router`` mode routes data and liveliness tokens between the peers that connect to it.
 Like ``rmw_zenohd`` it listens on ``tcp/[::]:7447`` by default, with multicast scouting off and gossip on;
-``ZENOH_ROUTER_CONFIG_URI`` replaces those defaults with a JSON5 file and ``ZENOH_CONFIG_OVERRIDE`` applies on
-top. Explicit ``listen``/``connect`` endpoints always win. ``ROS_DOMAIN_ID`` does not matter to a router.
+it refuses messages over :data:`~fleetslam.middleware.context.MAX_MESSAGE_BYTES` as they arrive (before
+reassembling them). ``ZENOH_ROUTER_CONFIG_URI`` replaces those defaults with a JSON5 file and
+``ZENOH_CONFIG_OVERRIDE`` applies on top. Explicit ``listen``/``connect`` endpoints always win. ``ROS_DOMAIN_ID``
+does not matter to a router.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any
 import zenoh
 
 from fleetslam.errors import MiddlewareError
-from fleetslam.middleware.context import apply_config_overrides, endpoints_of, load_config_file
+from fleetslam.middleware.context import MAX_MESSAGE_BYTES, apply_config_overrides, endpoints_of, load_config_file
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +43,7 @@ def router_config(
         config.insert_json5("scouting/gossip/enabled", "true")
         config.insert_json5("scouting/delay", "0")  # nothing to scout for: don't idle 500 ms in open()
         config.insert_json5("timestamping/enabled", "true")
+        config.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
     if listen is not None:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect is not None:
