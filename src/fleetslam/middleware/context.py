@@ -12,7 +12,11 @@ Environment (explicit constructor arguments win):
 - ``ZENOH_CONFIG_OVERRIDE``: ``a/b=json5;c=json5`` pairs inserted on top (bad pairs are warned about and skipped);
 - ``ZENOH_ROUTER_CHECK_ATTEMPTS``: unset → wait up to 2 s for the router, ``<0`` → don't check, ``0`` → wait
   forever, ``n`` → wait up to n seconds (rmw checks n times 1 s apart);
-- ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off.
+- ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off;
+- ``FLEETSLAM_SECURITY``: a keystore made by ``fleetslam security init`` (or one host's folder of it): the session
+  is then that host's mutual-TLS client of the router (see :mod:`fleetslam.security`); the host is
+  ``FLEETSLAM_IDENTITY``, else the agent of ``FLEETSLAM_AGENT``, else ``station``. ``FLEETSLAM_ROUTER`` still
+  overrides the router endpoint; listen endpoints do not apply (a client listens on nothing).
 
 The default session is rmw_zenoh's: peer mode connected to the router, multicast scouting off, gossip on,
 timestamping on, queries time out after 600 s (plus ``scouting/delay`` 0: open() does not idle 500 ms, the
@@ -33,6 +37,7 @@ import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -101,8 +106,17 @@ def session_config(
     """
     environ = os.environ if environ is None else environ
     uri = environ.get("ZENOH_SESSION_CONFIG_URI", "").strip()
+    security = environ.get("FLEETSLAM_SECURITY", "").strip()
     if uri:
         config = load_config_file(uri, "ZENOH_SESSION_CONFIG_URI")
+    elif security:
+        from fleetslam.security.keystore import host_folder, load_zenoh_config
+
+        identity = environ.get("FLEETSLAM_IDENTITY", "").strip() or namespace_from_env(environ).strip("/") or "station"
+        config = load_zenoh_config(host_folder(Path(security), identity))
+        if listen:
+            log.warning("FLEETSLAM_SECURITY: a secured host is a client of the router; listen %s ignored", listen)
+        listen = None
     else:
         config = zenoh.Config()
         config.insert_json5("mode", '"peer"')
@@ -178,7 +192,7 @@ class Context:
         environ: Mapping[str, str] | None = None,
     ) -> None:
         environ = dict(os.environ if environ is None else environ)
-        from_file = bool(environ.get("ZENOH_SESSION_CONFIG_URI", "").strip())
+        from_file = bool(environ.get("ZENOH_SESSION_CONFIG_URI", "").strip() or environ.get("FLEETSLAM_SECURITY"))
         if router is None and "FLEETSLAM_ROUTER" in environ:
             router = environ["FLEETSLAM_ROUTER"]
         if listen is None and "FLEETSLAM_LISTEN" in environ:

@@ -14,6 +14,7 @@ import json
 import logging
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -30,11 +31,17 @@ def router_config(
     listen: Sequence[str] | None = DEFAULT_ROUTER_LISTEN,
     connect: Sequence[str] | None = (),
     environ: Mapping[str, str] | None = None,
+    security: Path | None = None,
 ) -> zenoh.Config:
-    """rmw_zenohd's config (or ``ZENOH_ROUTER_CONFIG_URI``'s file) with these endpoints and the overrides."""
+    """rmw_zenohd's config (or ``ZENOH_ROUTER_CONFIG_URI``'s file, or the router's of the keystore ``security``:
+    mutual TLS and the fleet's access control) with these endpoints and the overrides."""
     environ = os.environ if environ is None else environ
     uri = environ.get("ZENOH_ROUTER_CONFIG_URI", "").strip()
-    if uri:
+    if security is not None:
+        from fleetslam.security.keystore import ROUTER, host_folder, load_zenoh_config
+
+        config = load_zenoh_config(host_folder(security, ROUTER))
+    elif uri:
         config = load_config_file(uri, "ZENOH_ROUTER_CONFIG_URI")
     else:
         config = zenoh.Config()
@@ -61,6 +68,8 @@ class Router:
         listen: endpoints to listen on (``None`` with a config file: the file's).
         connect: other routers to connect to.
         environ: environment to read instead of ``os.environ``.
+        security: a keystore of ``fleetslam security init`` (its ``router`` folder, or that folder itself): mutual
+            TLS and the fleet's access control; ``listen=None`` keeps its ``tls/`` endpoints.
 
     Raises:
         MiddlewareError: the router cannot start (e.g. the port is taken).
@@ -73,8 +82,9 @@ class Router:
         *,
         connect: Sequence[str] = (),
         environ: Mapping[str, str] | None = None,
+        security: Path | None = None,
     ) -> None:
-        config = router_config(list(listen) if listen is not None else None, list(connect), environ)
+        config = router_config(list(listen) if listen is not None else None, list(connect), environ, security)
         try:
             self.session = zenoh.open(config)
         except Exception as err:
