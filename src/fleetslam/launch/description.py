@@ -33,7 +33,8 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from fleetslam.config import ConfigModel, load_config
+from fleetslam.config import ConfigModel, load_config, read_yaml
+from fleetslam.errors import ConfigError
 
 _NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 
@@ -136,7 +137,10 @@ class FleetDescription(ConfigModel):
 
 
 def load_fleet(path: str | Path, overrides: list[str] | None = None) -> FleetDescription:
-    """Read and validate a fleet file; errors name the file, the key and the value."""
+    """Read and validate a fleet file; errors name the file, the key and the value. An empty file is an error (it
+    would describe a lone router listening on every interface)."""
+    if not read_yaml(path) and not overrides:
+        raise ConfigError(f"{path}: empty fleet file; describe at least one agent (see examples/)")
     return load_config(FleetDescription, path, overrides=overrides)
 
 
