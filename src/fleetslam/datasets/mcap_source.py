@@ -150,7 +150,13 @@ class McapSource:
         make_reader = _reader(self.path)
         with self.path.open("rb") as f, _unreadable_as_dataset_error(self.path):
             for schema, channel, message in make_reader(f).iter_messages(topics=topics):
-                yield channel.topic, partial(self._store.deserialize_cdr, bytes(message.data), schema.name)
+                yield channel.topic, partial(self._decode, bytes(message.data), schema.name, channel.topic)
+
+    def _decode(self, data: bytes, type_name: str, topic: str) -> Any:
+        try:
+            return self._store.deserialize_cdr(data, type_name)
+        except Exception as err:  # rosbags' SerdeError, struct.error, ...: a corrupt message
+            raise DatasetError(f"{self.path}: a {type_name} message on {topic} cannot be decoded: {err}") from err
 
     def _pair_index(self) -> list[tuple[int, int]]:
         # Stamps only on this pass; images are decoded again while iterating to keep memory flat.
