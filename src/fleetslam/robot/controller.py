@@ -122,6 +122,11 @@ class BaseController:
         self._last_stamp = stamp
         return True
 
+    def source_lost(self) -> None:
+        """The commanding source is gone (its liveliness token was withdrawn, or its link cut): brake now, at the
+        deceleration limits, instead of waiting for the command's deadline."""
+        self._target = (0.0, 0.0)
+
     def timed_out(self, now: float) -> bool:
         """Whether the last accepted command is older than ``cmd_vel_timeout`` (or none came yet)."""
         return self._last_stamp is None or now - self._last_stamp > self.config.cmd_vel_timeout
