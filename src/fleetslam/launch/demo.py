@@ -69,7 +69,16 @@ class DemoResult:
         return totals
 
 
-def _agent_processes(robots: list[str], router: str) -> list[ProcessSpec]:
+def _fleet_env(router: str, security: Path | None, identity: str | None = None) -> dict[str, str]:
+    """How a demo process joins: the router's endpoint, and with a keystore its folder and the identity it uses
+    (agents default to their own, from FLEETSLAM_AGENT)."""
+    if security is None:
+        return {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_SECURITY": str(security)}
+    return {**env, "FLEETSLAM_IDENTITY": identity} if identity else env
+
+
+def _agent_processes(robots: list[str], router: str, security: Path | None = None) -> list[ProcessSpec]:
     processes = []
     for i, robot in enumerate(robots):
         peers = [r for r in robots if r != robot]
@@ -88,11 +97,7 @@ def _agent_processes(robots: list[str], router: str) -> list[ProcessSpec]:
                     str(cx),
                     str(cy),
                 ],
-                environment={
-                    "FLEETSLAM_ROUTER": router,
-                    "FLEETSLAM_AGENT": robot,
-                    "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0",
-                },
+                environment={**_fleet_env(router, security), "FLEETSLAM_AGENT": robot},
                 restart=RestartPolicy(initial_backoff_s=1.0),
             )
         )
@@ -133,9 +138,17 @@ _MAP_NICENESS = 10
 
 
 def _sim_processes(
-    robots: list[str], router: str, out_dir: Path, resolution: str, camera_hz: float = 10.0, route: str = "loop"
+    robots: list[str],
+    router: str,
+    out_dir: Path,
+    resolution: str,
+    camera_hz: float = 10.0,
+    route: str = "loop",
+    security: Path | None = None,
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
-    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    env = _fleet_env(router, security)
+    # The fleet map and the simulator (every robot's sensors, /clock) act for the whole fleet: the station's identity.
+    fleet_env = _fleet_env(router, security, "station")
     maps_dir = f"maps_dir={(out_dir / 'maps').resolve()}"  # the only place the save services write to
     processes = []
     for robot in robots:
@@ -159,13 +172,13 @@ def _sim_processes(
     )
     processes.append(ProcessSpec(label="fleet_map", host="localhost",
                                  argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
-                                 environment={**env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy(),
+                                 environment={**fleet_env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy(),
                                  niceness=_MAP_NICENESS))  # fmt: skip
     processes.append(ProcessSpec(label="sim", host="localhost",
                                  argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz",
                                                  f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
                                                  "--laps"),
-                                 environment={**env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+                                 environment={**fleet_env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
                                  restart=RestartPolicy()))  # fmt: skip
     return processes, extrinsics
 
@@ -334,21 +347,34 @@ def run_demo(
     route: str = "loop",
     output: TextIO = sys.stdout,
     stop: threading.Event | None = None,
+    secure: bool = False,
 ) -> DemoResult:
     """Run the demo until ``duration_s`` passes (None: until Ctrl-C) or ``stop`` is set, then write the results
-    to ``out_dir``."""
+    to ``out_dir``. With ``secure``, a keystore is made in ``out_dir/keys`` and every process joins the router by
+    mutual TLS under its access control (docs/security.md)."""
     stop = stop or threading.Event()
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    security: Path | None = None
+    if secure:
+        from fleetslam.middleware.context import MAX_MESSAGE_BYTES
+        from fleetslam.security.keystore import init_keystore
+
+        security = (out_dir / "keys").resolve()
+        init_keystore(security, agents=robots, stations=["station"], router_port=router_port,
+                      max_message_bytes=MAX_MESSAGE_BYTES)  # fmt: skip
+        endpoint = f"tls/localhost:{router_port}"
+        print(f"[demo] secured: keystore in {security}, router on {endpoint}", file=output, flush=True)
     if mode == "sim":
         print("[demo] preparing the simulated plant", file=output, flush=True)
-        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route)
+        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route, security)
     else:
-        processes, extrinsics = _agent_processes(robots, endpoint), {}
-    with Router([endpoint]):
+        processes, extrinsics = _agent_processes(robots, endpoint, security), {}
+    own_env = _fleet_env(endpoint, security, "station")
+    with Router([endpoint]) if security is None else Router(None, security=security, environ={}):
         log_file = open(out_dir / "processes.log", "w")  # noqa: SIM115
         supervisor = Supervisor(processes, output=log_file)
-        with Context(router=endpoint, listen="tcp/127.0.0.1:0", namespace="/") as ctx:
+        with Context(namespace="/", environ={**os.environ, **own_env}) as ctx:
             monitor = _Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
             station = None
             if not headless:
