@@ -125,6 +125,17 @@ class FleetDescription(ConfigModel):
     """The agents."""
     hosts_nodes: list[NodeSpec] = Field(default_factory=list)
     """Nodes outside any agent namespace (station, fleet map); each names its host."""
+    security: str = ""
+    """Keystore made by ``fleetslam security init``, at this path on every host (each host needs only its own
+    folder of it): the router runs with ``--security``, every process gets ``FLEETSLAM_SECURITY``; agents' nodes
+    act as their agent, host-level nodes as ``station``. ``router.endpoint`` must then be a ``tls/`` endpoint.
+    Empty: an open fleet (docs/security.md)."""
+
+    @model_validator(mode="after")
+    def _secured_router_is_tls(self) -> FleetDescription:
+        if self.security and not all(e.strip().startswith("tls/") for e in self.router.endpoint.split(",")):
+            raise ValueError(f"with security, router.endpoint must be tls/..., got {self.router.endpoint!r}")
+        return self
 
     @field_validator("agents")
     @classmethod
@@ -185,14 +196,21 @@ def resolve_processes(fleet: FleetDescription, *, python: str | None = None) -> 
         "FLEETSLAM_ROUTER": fleet.router.endpoint,
         "ROS_DOMAIN_ID": str(fleet.domain_id),
     }
+    host_identity = {}
+    if fleet.security:
+        base_env["FLEETSLAM_SECURITY"] = fleet.security
+        host_identity["FLEETSLAM_IDENTITY"] = "station"
     processes: list[ProcessSpec] = []
     if fleet.router.embedded:
-        listen_args = [arg for endpoint in fleet.router.listen for arg in ("--listen", endpoint)]
+        # A secured router listens where its keystore says, unless the file names listen endpoints itself.
+        listen = fleet.router.listen if not fleet.security or "listen" in fleet.router.model_fields_set else []
+        listen_args = [arg for endpoint in listen for arg in ("--listen", endpoint)]
+        security_args = ["--security", fleet.security] if fleet.security else []
         processes.append(
             ProcessSpec(
                 label="router",
                 host=fleet.router.host,
-                argv=[python, "-m", "fleetslam.cli.main", "router", *listen_args],
+                argv=[python, "-m", "fleetslam.cli.main", "router", *listen_args, *security_args],
                 environment=dict(fleet.environment),
                 restart=RestartPolicy(mode="always"),
             )
@@ -217,7 +235,7 @@ def resolve_processes(fleet: FleetDescription, *, python: str | None = None) -> 
                 label=node.name,
                 host=node.host or fleet.router.host,
                 argv=_argv(node, python),
-                environment={**base_env, **node.environment},
+                environment={**base_env, **host_identity, **node.environment},
                 restart=node.restart,
             )
         )
