@@ -18,7 +18,8 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
     rng_bytes = bytes((k * 97 + 13) % 256 for k in range(3000))
     files = {"garbage.mcap": rng_bytes, "bad.yaml": b"robots: \xff\xfe\n", "empty.yaml": b"",
              "points.xyz.bz2": bz2.compress(b"0 0 1\n1 1 1\n" * 100)[:40], "empty.xyz": b"# no points\n",
-             "nan.xyz": b"nan nan nan\nnan 1 2\ninf 0 0\n"}  # fmt: skip
+             "nan.xyz": b"nan nan nan\nnan 1 2\ninf 0 0\n",
+             "endpoint.yaml": b"router: {endpoint: '???'}\nagents: [{name: c3po}]\n"}  # fmt: skip
     for name, data in files.items():
         (tmp_path / name).write_bytes(data)
     _write(tmp_path / "whole.mcap", 4)
@@ -40,6 +41,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["map", "build", "{f}", "-o", "{out}/m.bt"], "nan.xyz", "all 3 points are NaN or infinite"),
         (["launch", "{f}"], "bad.yaml", "not UTF-8 text"),
         (["launch", "{f}", "--print-hosts"], "empty.yaml", "empty fleet file"),
+        (["launch", "{f}", "--print-hosts"], "endpoint.yaml", "'???' is not a Zenoh endpoint"),
     ],
 )
 def test_bad_files_end_in_one_line_naming_the_file(
@@ -51,3 +53,13 @@ def test_bad_files_end_in_one_line_naming_the_file(
     assert code != 0
     assert "Traceback" not in err and str(path) in err and says in err, err
     assert len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("command", [["router", "--listen", "???"], ["topic", "list"]])
+def test_a_bad_endpoint_is_one_line_not_a_restart_loop(
+    command: list[str], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLEETSLAM_ROUTER", "???")
+    assert main(command) != 0
+    err = capsys.readouterr().err
+    assert "'???' is not a Zenoh endpoint" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -35,6 +35,7 @@ from pydantic import Field, field_validator, model_validator
 
 from fleetslam.config import ConfigModel, load_config, read_yaml
 from fleetslam.errors import ConfigError
+from fleetslam.middleware.context import check_endpoint
 
 _NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 
@@ -50,6 +51,16 @@ class RouterSpec(ConfigModel):
     """Endpoints the router listens on."""
     embedded: bool = True
     """Start the router as one of the supervised processes when launching on its host."""
+
+    @field_validator("endpoint")
+    @classmethod
+    def _endpoints(cls, endpoint: str) -> str:
+        return ",".join(check_endpoint(e) for e in endpoint.split(","))
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, listen: list[str]) -> list[str]:
+        return [check_endpoint(e) for e in listen]
 
 
 class RestartPolicy(ConfigModel):
@@ -106,6 +117,12 @@ class AgentSpec(ConfigModel):
     """Host that runs the agent's nodes."""
     listen: str | None = None
     """This host's listen endpoint (FLEETSLAM_LISTEN), e.g. tcp/10.1.2.10:0."""
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, listen: str | None) -> str | None:
+        return None if listen is None else check_endpoint(listen)
+
     environment: dict[str, str] = Field(default_factory=dict)
     """Environment variables for every node of the agent."""
     nodes: list[NodeSpec] = Field(default_factory=list)

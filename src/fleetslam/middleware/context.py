@@ -34,6 +34,7 @@ import json
 import logging
 import math
 import os
+import re
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -60,10 +61,23 @@ MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 octree a few MB). Raise it with ``ZENOH_CONFIG_OVERRIDE='transport/link/rx/max_message_size=<bytes>'`` on every host."""
 
 
+_ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/?#][^\s]*")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` if it is ``<protocol>/<address>`` with a Zenoh protocol; else ValueError saying so."""
+    if not _ENDPOINT.fullmatch(endpoint.strip()):
+        raise ValueError(f"{endpoint!r} is not a Zenoh endpoint (<protocol>/<address>, e.g. tcp/10.0.0.2:7447)")
+    return endpoint.strip()
+
+
 def split_endpoints(text: str | Sequence[str]) -> list[str]:
-    """``"tcp/a:1, tcp/b:2"`` (or a list) → ``["tcp/a:1", "tcp/b:2"]``."""
+    """``"tcp/a:1, tcp/b:2"`` (or a list) → ``["tcp/a:1", "tcp/b:2"]``; ConfigError for one that is not an endpoint."""
     items = text.split(",") if isinstance(text, str) else list(text)
-    return [item.strip() for item in items if item.strip()]
+    try:
+        return [check_endpoint(item) for item in items if item.strip()]
+    except ValueError as err:
+        raise ConfigError(f"endpoint {err}") from err
 
 
 def apply_config_overrides(config: zenoh.Config, overrides: str) -> list[str]:

@@ -20,7 +20,13 @@ from typing import Any
 import zenoh
 
 from fleetslam.errors import MiddlewareError
-from fleetslam.middleware.context import MAX_MESSAGE_BYTES, apply_config_overrides, endpoints_of, load_config_file
+from fleetslam.middleware.context import (
+    MAX_MESSAGE_BYTES,
+    apply_config_overrides,
+    endpoints_of,
+    load_config_file,
+    split_endpoints,
+)
 
 log = logging.getLogger(__name__)
 
@@ -52,9 +58,9 @@ def router_config(
         config.insert_json5("timestamping/enabled", "true")
         config.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
     if listen is not None:
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        config.insert_json5("listen/endpoints", json.dumps(split_endpoints(listen)))
     if connect is not None:
-        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        config.insert_json5("connect/endpoints", json.dumps(split_endpoints(connect)))
     overrides = environ.get("ZENOH_CONFIG_OVERRIDE", "")
     if overrides:
         apply_config_overrides(config, overrides)
