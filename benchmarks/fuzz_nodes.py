@@ -1,4 +1,4 @@
-"""Hostile samples on every subscribed topic of the robot, SLAM, mapping and fleet-map nodes (issue 18, item 4).
+"""Hostile samples on every subscribed topic of the robot, SLAM, mapping, fleet-map and console nodes (issue 18).
 
 Runs ``tests/fuzz`` with ``--count`` samples (default 100,000; CI runs 10,000) over a real router on loopback and
 prints one JSON line: the count, whether every node was alive and at its rate afterwards, and the seconds taken.

@@ -1,6 +1,6 @@
 """Issue 18, item 4: 10,000 hostile samples on every subscribed topic of the robot, SLAM, mapping and fleet-map nodes
-over a real router; afterwards every node is alive and doing its job at its normal rate (the script
-``benchmarks/fuzz_nodes.py`` runs the same with >= 100,000)."""
+and the console's bridge over a real router; afterwards every node is alive and doing its job at its normal rate
+(the script ``benchmarks/fuzz_nodes.py`` runs the same with >= 100,000)."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ from fleetslam.middleware.typesys import get_type, header, message_from_dict
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.node import BaseControllerNode
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
+from fleetslam.station.bridge import StationBridge
 
 from ..mapping.test_mapping_node import _keyframe
 from ..middleware.conftest import plain_session
@@ -87,7 +88,13 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     fleet = Node("fleet_map", context=make_context())
     FleetMapNode(fleet, FleetMapConfig(resolution=0.1, agents=["c3po"], publish_rate=5.0, maps_dir=str(tmp_path)))
     observer = Node("observer", context=make_context())
-    counts = {"odom": 0, "slam": 0, "cloud": 0}
+    counts = {"odom": 0, "slam": 0, "cloud": 0, "console": 0}
+
+    def to_browsers(message: dict[str, Any], agent_filter: str | None) -> None:  # the console's output
+        if message.get("type") == "pose" and message.get("agent") == "c3po":
+            counts["console"] += 1
+
+    station = StationBridge(make_context(), to_browsers)
 
     def count(name: str) -> Callable[[Any], None]:
         return lambda _: counts.__setitem__(name, counts[name] + 1)
@@ -99,19 +106,23 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     camera = _Camera(Node("camera", context=make_context("c3po")))
     keyframes = observer.create_publisher("fleetslam_msgs/msg/Keyframe", "/c3po/keyframes", QoSProfile(depth=50))
     assert wait_until(lambda: counts["odom"] > 10 and keyframes.matched_subscriptions > 0, 10.0)
+    assert wait_until(lambda: "c3po" in station.agents, 10.0)  # the console subscribed to c3po's topics
 
     def odom_for_2s() -> None:
         time.sleep(2.0)
 
     camera.stream(2.0)  # the SLAM pipeline starts
+    console_before = counts["console"]
     odom_before = _rate(lambda: counts["odom"], odom_for_2s)
+    console_before = counts["console"] - console_before
     slam_before = _rate(lambda: counts["slam"], lambda: camera.stream(3.0))
     assert odom_before >= 50 and slam_before >= 8, (odom_before, slam_before)  # 50 Hz and 5 Hz, loaded machine
 
-    fuzzed = targets([robot, slam, mapping, fleet])
+    fuzzed = targets([robot, slam, mapping, fleet, station.node])
     topics = {t.topic for t in fuzzed}
     assert {"/c3po/cmd_vel", "/c3po/camera/rgb/image_raw", "/c3po/camera/depth/image_raw", "/c3po/keyframes",
-            "/c3po/graph", "/c3po/map/octomap"} <= topics, topics  # fmt: skip
+            "/c3po/graph", "/c3po/map/octomap", "/statistics", "/c3po/path", "/c3po/ground_truth/odom"} <= topics, (
+        topics)  # fmt: skip
     attacker = plain_session(router_endpoint)
     try:
         campaign = replay(attacker, fuzzed, COUNT)
@@ -121,7 +132,10 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
 
     # Alive and at their rates: the controller's odometry, SLAM on the camera, the map on a new keyframe.
     time.sleep(1.0)  # the queued hostile samples are worked off
+    console_after = counts["console"]
     odom_after = _rate(lambda: counts["odom"], odom_for_2s)
+    console_after = counts["console"] - console_after
+    assert console_after >= 0.8 * console_before > 0, (console_before, console_after)  # poses to the browsers
     slam_after = _rate(lambda: counts["slam"], lambda: camera.stream(3.0))
     assert odom_after >= 0.8 * odom_before and slam_after >= 0.8 * slam_before, (
         odom_before, odom_after, slam_before, slam_after)  # fmt: skip
@@ -135,5 +149,6 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
         response = observer.create_client("fleetslam_msgs/srv/SaveMap", service).call(request(path=name), timeout=20)
         assert response.success, (service, response.message)
     assert slam_node.counts["failed_frames"] >= 0  # counted, never fatal
-    errors = sum(s.statistics.total_errors for n in (robot, slam, mapping, fleet) for s in n._subscriptions)
+    errors = sum(s.statistics.total_errors for n in (robot, slam, mapping, fleet, station.node)
+                 for s in n._subscriptions)  # fmt: skip
     assert errors > COUNT // 10  # the malformed ones were seen and counted as errors
