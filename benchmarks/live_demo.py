@@ -132,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     port = args.port or _free_port()
+    from fleetslam.station.access import new_token
+
+    token = new_token()  # the console's WebSocket asks for it
     stop_browser = threading.Event()
     browser_log: list[str] = []
     browser_usage: dict[str, float] = {}
@@ -141,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         def start_browser() -> None:
             time.sleep(15.0)  # the console server starts after the simulated plant is prepared
             try:
-                _browse(f"http://127.0.0.1:{port}/", stop_browser, args.out, browser_log, browser_usage)
+                _browse(f"http://127.0.0.1:{port}/?token={token}", stop_browser, args.out, browser_log, browser_usage)
             except Exception as err:  # the figure is still worth having; the JSON line says the browser failed
                 browser_log.append(f"browser failed: {err}")
 
@@ -151,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     busy_start, total_start = machine_cpu()
     result = run_demo(
         robots=["c3po", "r2d2"], duration_s=args.duration, out_dir=args.out, port=port,
-        router_port=_free_port(), headless=args.no_browser, output=sys.stderr,
+        router_port=_free_port(), headless=args.no_browser, output=sys.stderr, console_token=token,
     )  # fmt: skip
     busy_end, total_end = machine_cpu()
     stop_browser.set()

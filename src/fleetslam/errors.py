@@ -62,3 +62,7 @@ class MissingExtraError(FleetslamError):
         )
         self.module = module
         self.extra = extra
+
+
+class UnsafePathError(FleetslamError):
+    """A file name given by a request (a service's save path) would leave its directory or is not a plain name."""

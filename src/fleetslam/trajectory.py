@@ -125,20 +125,22 @@ def read_tum(path: str | Path) -> Trajectory:
         raise DatasetError(f"{path}: trajectory file not found")
     stamps: list[float] = []
     poses: list[NDArray[np.float64]] = []
-    with path.open(encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = line.replace(",", " ").split()
-            try:
-                values = [float(v) for v in fields]
-            except ValueError as err:
-                raise DatasetError(f"{path}:{lineno}: not a number in TUM line {line!r}") from err
-            if len(values) != 8:
-                raise DatasetError(
-                    f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), got {len(values)}"
-                )
-            stamps.append(values[0])
-            poses.append(pose_from_quat(values[1:4], values[4:8]))
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as err:
+        byte = err.object[err.start]
+        raise DatasetError(f"{path}: not UTF-8 text (byte 0x{byte:02x} at offset {err.start})") from err
+    for lineno, line in enumerate(lines, start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.replace(",", " ").split()
+        try:
+            values = [float(v) for v in fields]
+        except ValueError as err:
+            raise DatasetError(f"{path}:{lineno}: not a number in TUM line {line!r}") from err
+        if len(values) != 8:
+            raise DatasetError(f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), got {len(values)}")
+        stamps.append(values[0])
+        poses.append(pose_from_quat(values[1:4], values[4:8]))
     return Trajectory.from_lists(stamps, poses)

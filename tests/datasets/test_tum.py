@@ -88,3 +88,24 @@ def test_sim_export_reads_camera_file_and_odometry(tmp_path: Path) -> None:
 def test_unknown_kind_is_an_error(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="cannot tell"):
         open_source(tmp_path)
+
+
+def test_float_depth_is_refused_and_a_suspicious_scale_warned_about(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 18, item 6: a float .tiff depth gave an identity trajectory without a word; millimetre data with TUM's
+    scale went unnoticed."""
+    root = tmp_path / "seq"
+    _write_tum(root, n=2)
+    first = sorted((root / "depth").iterdir())[0]
+    cv2.imwrite(str(first), np.full((48, 64), 1500, np.uint16))  # 1.5 m written in millimetres
+    with caplog.at_level("WARNING"):
+        frames = list(open_source(root))
+    assert frames[0].depth[0, 0] == pytest.approx(0.3)  # read with 5000 per metre, as asked ...
+    assert "millimetre data needs depth_scale 1000" in caplog.text  # ... and said loudly
+    tiff = first.with_suffix(".tiff")
+    cv2.imwrite(str(tiff), np.full((48, 64), 1.5, np.float32))
+    depth_list = root / "depth.txt"
+    depth_list.write_text(depth_list.read_text().replace(first.name, tiff.name))
+    with pytest.raises(DatasetError, match=r"depth image is float32, TUM depth is 16-bit"):
+        list(open_source(root))

@@ -51,7 +51,7 @@ def test_fleet_node_fuses_without_subscribers_and_serves_late_ones(
 ) -> None:
     fleet_node = Node("fleet_map", context=make_context())
     config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]},
-                            agents=["c3po", "r2d2"], publish_rate=5.0)  # fmt: skip
+                            agents=["c3po", "r2d2"], publish_rate=5.0, maps_dir=str(tmp_path))  # fmt: skip
     fleet = FleetMapNode(fleet_node, config)
     latched = QoSProfile(durability="transient_local", depth=1)
     for agent in ("c3po", "r2d2"):
@@ -60,7 +60,10 @@ def test_fleet_node_fuses_without_subscribers_and_serves_late_ones(
     assert wait_until(lambda: fleet.fleet.agents() == ["c3po", "r2d2"], 10.0)
     assert fleet._published == {"occupied": 0, "octomap": 0}  # nobody asked: nothing built or sent
     save = fleet_node.create_client("fleetslam_msgs/srv/SaveMap", "/fleet/map/save")
-    response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path=str(tmp_path / "fleet.bt")), timeout=10)
+    request = get_type("fleetslam_msgs/srv/SaveMap_Request")
+    refused = save.call(request(path=str(tmp_path / "elsewhere.bt")), timeout=10)  # a path, not a name
+    assert not refused.success and "not a plain file name" in refused.message
+    response = save.call(request(path="fleet.bt"), timeout=10)
     assert response.success, response.message
     saved = OccupancyOctree.read(tmp_path / "fleet.bt")
     assert saved.is_occupied([2.05, 0.05, 0.55]) and saved.is_occupied([7.95, 0.05, 0.55])

@@ -162,3 +162,25 @@ def test_odometry_stamp_and_pose_are_read_where_cdr_puts_them(frame_id: str, chi
     np.testing.assert_array_equal(pose, np.concatenate([position, quaternion]))
     decoded = _decoded_stamp_pose(data)  # the full decode, for payloads the reader does not take
     assert decoded[0] == pytest.approx(stamp) and np.array_equal(decoded[1], pose)
+
+
+def test_secured_demo_runs_under_mutual_tls_and_access_control(tmp_path: Path) -> None:
+    """`fleetslam demo --secure`: every process joins by mutual TLS under the router's access control, and the demo
+    still does its job (maps of every robot and the fleet, trajectories)."""
+    pytest.importorskip("mujoco")
+    import shutil
+
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command makes the certificates")
+    out = io.StringIO()
+    run = tmp_path / "secure"
+    port = free_port()
+    result = run_demo(robots=["c3po", "r2d2"], duration_s=25.0, out_dir=run, router_port=port, headless=True,
+                      output=out, secure=True)  # fmt: skip
+    assert f"router on tls/localhost:{port}" in out.getvalue()
+    assert (run / "keys" / "c3po" / "cert.pem").is_file()
+    for name in ("c3po", "r2d2", "fleet"):
+        assert OccupancyOctree.read(run / "maps" / f"{name}.bt").num_nodes() > 1000, name
+    for robot in ("c3po", "r2d2"):
+        assert len(read_tum(run / "trajectories" / f"{robot}.txt")) > 20
+        assert 0.0 <= result.ate[robot] < 1.0

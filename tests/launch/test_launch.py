@@ -73,6 +73,18 @@ def test_resolve_sets_environment_and_ros_args(tmp_path: Path) -> None:
     assert procs["router"].host == "base"
 
 
+def test_a_secured_fleet_runs_every_process_with_the_keystore(tmp_path: Path) -> None:
+    secured = FLEET.replace('endpoint: "tcp/10.1.2.2:7447"', 'endpoint: "tls/base:7447"') + "security: /etc/keys\n"
+    procs = {p.label: p for p in resolve_processes(load_fleet(_write(tmp_path, secured)), python="py")}
+    assert procs["router"].argv == ["py", "-m", "fleetslam.cli.main", "router", "--security", "/etc/keys"]
+    for label in ("c3po/slam", "r2d2/sim", "station"):
+        assert procs[label].environment["FLEETSLAM_SECURITY"] == "/etc/keys"
+    assert procs["station"].environment["FLEETSLAM_IDENTITY"] == "station"
+    assert "FLEETSLAM_IDENTITY" not in procs["c3po/slam"].environment  # an agent acts as itself
+    with pytest.raises(ConfigError, match=r"router.endpoint must be tls/"):
+        load_fleet(_write(tmp_path, FLEET + "security: /etc/keys\n"))
+
+
 def test_print_hosts_groups_by_host(tmp_path: Path) -> None:
     text = format_host_instructions(load_fleet(_write(tmp_path, FLEET)))
     assert "# host base" in text and "# host c3po" in text and "# host r2d2" in text

@@ -44,5 +44,5 @@ def test_a_router_that_cannot_start_is_a_clear_error() -> None:
         pytest.raises(MiddlewareError, match="something already listens there"),
     ):
         RouterProcess(f"tcp/127.0.0.1:{port}")
-    with pytest.raises(MiddlewareError, match="tcp/HOST:PORT"):
+    with pytest.raises(MiddlewareError, match="tcp/HOST:PORT or tls/HOST:PORT"):
         RouterProcess("udp/127.0.0.1:7447")

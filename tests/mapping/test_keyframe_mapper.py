@@ -1,5 +1,8 @@
+from collections.abc import Callable
+
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from fleetslam.geometry import T_BODY_OPTICAL, invert, make_pose, pose_from_planar, so3_exp, transform_points
 from fleetslam.mapping.config import MappingConfig
@@ -184,3 +187,32 @@ def test_replaying_only_the_rays_that_cross_the_moved_scans_is_exact() -> None:
     mapper.integrate()
     assert mapper.reintegrated == 1 and mapper.rebuilds == 0
     _same_map(mapper.tree, _fresh({**keyframes, 8: (points, shifted)}).tree)
+
+
+@pytest.mark.parametrize(
+    "corrupt",
+    [
+        lambda pose: pose.__setitem__((0, 3), np.nan),
+        lambda pose: pose.__setitem__((1, 1), np.inf),
+        lambda pose: pose.__setitem__((slice(0, 3), slice(0, 3)), 0.0),  # a zero quaternion's rotation
+        lambda pose: pose.__setitem__((slice(0, 3), 0), -pose[:3, 0]),  # a reflection
+        lambda pose: pose.__setitem__((2, 3), 1e6),  # beyond the octree's keys
+    ],
+)
+def test_poses_that_are_not_finite_rigid_transforms_in_the_map_are_refused_and_change_nothing(
+    corrupt: Callable[[NDArray[np.float64]], None],
+) -> None:
+    mapper = KeyframeMapper(MappingConfig(resolution=0.1))
+    good = np.eye(4)
+    bad = np.eye(4)
+    corrupt(bad)
+    points = np.array([[0.0, 0.0, 2.0], [np.nan, 0.0, 2.0], [0.1, np.inf, 2.0]])
+    with pytest.raises(ValueError, match="keyframe 0: pose"):
+        mapper.add_keyframe(0, points, bad)
+    assert not mapper.scans
+    mapper.add_keyframe(1, points, good)
+    assert mapper.integrate() == 1 and mapper.tree.is_occupied([0.05, 0.05, 2.05])  # the finite point went in
+    with pytest.raises(ValueError, match=r"keyframes \[1\]"):
+        mapper.update_poses({1: bad})
+    np.testing.assert_array_equal(mapper.scans[1].pose, good)
+    assert mapper.pending == 0

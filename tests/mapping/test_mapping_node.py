@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -37,7 +36,7 @@ def _keyframe(keyframe_id: int, pose: np.ndarray, distance: float) -> Any:
 
 def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Context], tmp_path: Path) -> None:
     mapping = Node("mapping", context=make_context("c3po"))
-    MappingNode(mapping, MappingNodeConfig(publish_rate=5.0, pixel_stride=2))
+    MappingNode(mapping, MappingNodeConfig(publish_rate=5.0, pixel_stride=2, maps_dir=str(tmp_path)))
     slam = Node("slam", context=make_context("c3po"))
     clouds: list[Any] = []
     octomaps: list[Any] = []
@@ -49,7 +48,7 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
     camera = T_BODY_OPTICAL.copy()
     camera[2, 3] = 0.5
-    time.sleep(0.5)
+    assert wait_until(lambda: keyframes.matched_subscriptions > 0, 10.0)  # a keyframe sent before is lost
     keyframes.publish(_keyframe(0, camera, 2.0))
     assert wait_until(lambda: bool(clouds) and bool(octomaps) and bool(grids), 10.0)
     cloud = clouds[-1]
@@ -60,7 +59,7 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     assert grids[-1].info.width > 0 and 100 in set(np.asarray(grids[-1].data).tolist())
     save = viewer.create_client("fleetslam_msgs/srv/SaveMap", "/c3po/map/save")
     assert save.wait_for_service(5.0)
-    response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path=str(tmp_path / "c3po.bt")), timeout=10)
+    response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path="c3po.bt"), timeout=10)
     assert response.success, response.message
     octomap = pytest.importorskip("octomap", reason="octomap-python is the oracle")
     in_file = octomap.OcTree(str(tmp_path / "c3po.bt").encode())
@@ -144,3 +143,72 @@ def test_publications_are_spaced_by_their_cost() -> None:
     assert pacer.due()
     assert not pacer.timed(build(0.5, did=False))  # nothing published: no wait
     assert pacer.due()
+
+
+def test_save_requests_naming_anything_but_a_file_in_the_maps_directory_are_refused(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    maps, outside = tmp_path / "maps", tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.bt").write_text("keep me")
+    (maps / "sub").mkdir(parents=True)
+    (maps / "link.bt").symlink_to(outside / "victim.bt")
+    MappingNode(Node("mapping", context=make_context("c3po")), MappingNodeConfig(maps_dir=str(maps)))
+    viewer = Node("viewer", context=make_context())
+    save = viewer.create_client("fleetslam_msgs/srv/SaveMap", "/c3po/map/save")
+    assert save.wait_for_service(5.0)
+    request = get_type("fleetslam_msgs/srv/SaveMap_Request")
+    attacks = {
+        str(outside / "victim.bt"): "not a plain file name",
+        "../outside/victim.bt": "not a plain file name",
+        "..": "not a plain file name",
+        "sub/x.bt": "not a plain file name",
+        ".hidden.bt": "not a plain file name",
+        "map.yaml": "must end in .bt or .ot",
+        "link.bt": "is a link",
+    }
+    for path, reason in attacks.items():
+        response = save.call(request(path=path), timeout=10)
+        assert not response.success and reason in response.message, (path, response.message)
+    assert (outside / "victim.bt").read_text() == "keep me"
+    assert sorted(p.name for p in maps.iterdir()) == ["link.bt", "sub"] and not any((maps / "sub").iterdir())
+    response = save.call(request(path=""), timeout=10)  # the default name, inside the maps directory
+    assert response.success and Path(response.path) == maps / "map.bt", response.message
+
+
+def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    mapping = MappingNode(Node("mapping", context=make_context("c3po")),
+                          MappingNodeConfig(publish_rate=5.0, maps_dir=str(tmp_path)))  # fmt: skip
+    slam = Node("slam", context=make_context("c3po"))
+    viewer = Node("viewer", context=make_context())
+    clouds: list[Any] = []
+    viewer.create_subscription("sensor_msgs/msg/PointCloud2", "/c3po/map/occupied", clouds.append, QoSProfile(depth=5))
+    keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
+    camera = T_BODY_OPTICAL.copy()
+    camera[2, 3] = 0.5
+    assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0, 10.0)
+    poisoned = _keyframe(0, camera, 2.0)
+    poisoned.pose.position.x = float("nan")
+    keyframes.publish(poisoned)
+    zero_rotation = _keyframe(1, camera, 2.0)
+    zero_rotation.pose.orientation.x = zero_rotation.pose.orientation.y = 0.0
+    zero_rotation.pose.orientation.z = zero_rotation.pose.orientation.w = 0.0
+    keyframes.publish(zero_rotation)
+    assert wait_until(lambda: mapping.rejected == 2, 10.0), mapping.rejected
+    keyframes.publish(_keyframe(2, camera, 2.0))
+    assert wait_until(lambda: bool(clouds) and clouds[-1].width > 100, 10.0)  # the map still grows
+    bad_graph = _graph({2: camera})
+    bad_graph.poses[0].position.z = float("inf")
+    graph.publish(bad_graph)
+    assert wait_until(lambda: mapping.rejected == 3, 10.0), mapping.rejected
+    np.testing.assert_allclose(mapping.mapper.scans[2].pose, camera)  # the bad graph changed nothing
+    keyframes.publish(_keyframe(3, pose_from_planar(0.5, 0.0, 0.0) @ camera, 2.0))  # and later keyframes count
+    assert wait_until(lambda: mapping.mapper.pending == 0 and 3 in mapping.mapper.scans, 10.0)
+    save = viewer.create_client("fleetslam_msgs/srv/SaveMap", "/c3po/map/save")
+    assert save.wait_for_service(5.0)
+    response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path="after.bt"), timeout=10)
+    assert response.success, response.message
+    assert OccupancyOctree.read(tmp_path / "after.bt").is_occupied([2.525, 0.025, 0.525])

@@ -122,6 +122,7 @@ def test_spin_returns_on_timeout_close_and_ctrl_c(make_context: Callable[..., Co
     threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
     ctx.spin(5.0)  # Ctrl-C: returns instead of raising KeyboardInterrupt
     assert time.monotonic() - start < 3.0  # Ctrl-C at 0.2 s, not the 5 s timeout
+
     # Two signals in quick succession (a supervisor signalling the process and its group): one clean return.
     def twice() -> None:
         os.kill(os.getpid(), signal.SIGINT)

@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from fleetslam.middleware import Context, Node
+from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.statistics import RunningStats, SubscriptionStatistics
 from fleetslam.middleware.typesys import get_type, ns_from_stamp, serialize
 from fleetslam.middleware.wire import encode_attachment, topic_key
@@ -114,3 +114,56 @@ def test_statistics_name_the_publishing_node_and_can_be_turned_off(make_context:
     assert {r.node_pub for r in reports} == {"/c3po/talker"}
     assert sum(r.delivered_msgs for r in reports) == 5 and all(r.dropped_msgs == 0 for r in reports)
     assert all(bytes(r.publisher_gid) == pub.gid for r in reports)
+
+
+def test_forged_publishers_are_bounded_and_their_counts_kept_as_other_publishers() -> None:
+    acc = SubscriptionStatistics(now_ns=0, max_publishers=4)
+    for k in range(1000):
+        acc.on_sample((k + 1).to_bytes(16, "little"), 1, 0, 1_000 + k, 10)
+    acc.on_sample(GID_A, 1, 0, 2_000, 10)
+    assert acc.publishers == 4 and acc.evicted == 1000 + 1 - 4
+    reports = acc.close_window(now_ns=10_000)
+    assert len(reports) == 5  # the four most recent GIDs and "other publishers"
+    others = [r for r in reports if r.publisher_gid == bytes(16)]
+    assert len(others) == 1 and others[0].delivered == 1000 + 1 - 4
+    assert sum(r.delivered for r in reports) == 1001 and sum(r.traffic_bytes for r in reports) == 10_010
+    assert GID_A in {r.publisher_gid for r in reports}
+
+
+def test_a_flood_of_forged_gids_leaves_statistics_bounded_and_the_node_delivering(
+    make_context: Callable[..., Context], raw_session: zenoh.Session
+) -> None:
+    """Issue 18, D4: 50,000 forged GIDs grew the SLAM node by 33.9 MB, 2,000 made 2,024 reports in 5 s."""
+    listener = Node("listener", context=make_context("r2d2"), statistics_period_s=0.5)
+    reports: list[Any] = []
+    listener.create_subscription(
+        "fleetslam_msgs/msg/TopicStatistics", "/statistics", reports.append, QoSProfile(depth=1000)
+    )
+    received: list[float] = []
+    chatter = listener.create_subscription(
+        "std_msgs/msg/String", "/c3po/chatter", lambda m: received.append(time.monotonic())
+    )
+    time.sleep(0.3)
+    key = topic_key(0, "/c3po/chatter", "std_msgs/msg/String")
+    payload = serialize(String(data="x"), "std_msgs/msg/String")
+    forged = 20_000
+    for k in range(forged):
+        raw_session.put(key, payload, attachment=encode_attachment(1, time.time_ns(), (k + 1).to_bytes(16, "big")))
+    assert wait_until(lambda: chatter.statistics.total_delivered == forged, 20.0), chatter.statistics.total_delivered
+    assert chatter.statistics.publishers <= chatter.statistics.max_publishers
+    assert len(chatter.publisher_types) <= chatter.statistics.max_publishers
+    time.sleep(1.2)  # the flood's windows are reported
+    flood_windows: dict[int, int] = {}
+    for report in reports:
+        if report.topic == "/c3po/chatter":
+            start = ns_from_stamp(report.window_start)
+            flood_windows[start] = flood_windows.get(start, 0) + 1
+    assert flood_windows and max(flood_windows.values()) <= chatter.statistics.max_publishers + 1, flood_windows
+    assert sum(r.delivered_msgs for r in reports if r.topic == "/c3po/chatter") == forged  # nothing lost
+    # After the flood, a genuine publisher is heard at its rate and gets its own report.
+    before = len(received)
+    for seq in range(1, 21):
+        raw_session.put(key, payload, attachment=encode_attachment(seq, time.time_ns(), GID_A))
+        time.sleep(0.02)
+    assert wait_until(lambda: len(received) - before == 20, 5.0)
+    assert wait_until(lambda: any(bytes(r.publisher_gid) == GID_A for r in reports), 5.0)

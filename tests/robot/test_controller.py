@@ -45,29 +45,41 @@ def test_tracks_a_command_and_odometry_follows() -> None:
     assert max(b - a for a, b in itertools.pairwise(vs)) <= 0.8 * DT + 1e-9  # + round-off of v + a·dt (~1e-17)
 
 
-def test_watchdog_brakes_to_zero_within_timeout_and_deceleration() -> None:
+@pytest.mark.parametrize("speed", [0.3, 0.8])
+def test_watchdog_has_the_robot_stopped_within_the_timeout_at_any_speed(speed: float) -> None:
+    """Issue 18, D6: the base kept full speed for the whole timeout and only then braked (0.71-1.09 s to stop). Now
+    the set-point reaches zero by the last command's deadline, and the wheels stand within it."""
     config = RobotConfig()
     ctrl, wheels = BaseController(config), MotorWheels()
-    t = 0.0
-    while t < 2.0:
-        ctrl.command(0.8, 0.0, stamp=t, now=t)
-        _run(ctrl, wheels, t, 0.1)
-        t += 0.1
-    last_command = t - 0.1
-    outputs = _run(ctrl, wheels, t, 2.0)
-    times = [t + k * DT for k in range(len(outputs))]
-    # still driving until the timeout, then braking within the deceleration limit
-    moving = [o for o, tt in zip(outputs, times, strict=True) if tt - last_command <= config.cmd_vel_timeout]
-    assert all(o.command[0] == pytest.approx(0.8) for o in moving)
-    braking_time = 0.8 / config.linear.max_deceleration
-    stop_deadline = last_command + config.cmd_vel_timeout + braking_time + 2 * DT
-    for o, tt in zip(outputs, times, strict=True):
-        if tt > stop_deadline:
+    period = 0.05  # a 20 Hz command stream, the console's
+    outputs: list[ControllerOutput] = []
+    last_command = 0.0
+    for k in range(round(3.0 / DT)):
+        now = k * DT
+        if now >= last_command + period - 1e-9 or k == 0:
+            assert ctrl.command(speed, 0.0, stamp=now, now=now)
+            last_command = now
+        outputs.append(ctrl.update(now, wheels))
+        wheels.advance(DT)
+    # Full speed as long as the stream holds, up to what can still be braked within the timeout after each command.
+    period = 3 * DT  # commands are sent on control steps: every third one
+    early = 2.0 / config.control_rate  # the set-point is zero this much before the deadline
+    # Between commands the bound falls from decel·(timeout − early) to decel·(timeout − early − period): a sawtooth.
+    lowest = min(speed, config.linear.max_deceleration * (config.cmd_vel_timeout - early - period))
+    highest = min(speed, config.linear.max_deceleration * (config.cmd_vel_timeout - early))
+    assert all(lowest - 0.02 <= o.odometry.v <= highest + 0.02 for o in outputs[-25:])
+    start = 3.0 - DT + DT  # the link is cut: no command after last_command
+    after = _run(ctrl, wheels, start, 1.5)
+    times = [start + k * DT for k in range(len(after))]
+    deadline = last_command + config.cmd_vel_timeout - early
+    for o, t in zip(after, times, strict=True):
+        if t >= deadline - 1e-9:
             assert o.command == (0.0, 0.0)
-            assert o.timed_out
-    vs = [o.command[0] for o in outputs]
+    stopped = next(t for o, t in zip(after, times, strict=True) if abs(o.odometry.v) < 0.01)
+    assert stopped - last_command <= config.cmd_vel_timeout  # the wheels themselves
+    vs = [o.command[0] for o in [*outputs, *after]]
     assert max(a - b for a, b in itertools.pairwise(vs)) <= config.linear.max_deceleration * DT + 1e-9  # round-off
-    assert abs(outputs[-1].odometry.v) < 0.01  # the wheels really stopped (7e-7 m/s measured)
+    assert abs(after[-1].odometry.v) < 0.01
 
 
 def test_stale_and_out_of_order_commands_are_dropped() -> None:
@@ -100,8 +112,8 @@ def test_estop_latches_zero_until_released() -> None:
     assert out.command == (0.0, 0.0)
     t += 0.2
     assert ctrl.command(0.3, 0.0, stamp=t, now=t)
-    out = _run(ctrl, wheels, t, 0.46)[-1]  # within the timeout of that one command
-    assert out.command[0] == pytest.approx(0.3)
+    outputs = _run(ctrl, wheels, t, 0.5)  # moves again, and that one command is braked away within its timeout
+    assert max(o.command[0] for o in outputs) > 0.1 and outputs[-1].command == (0.0, 0.0)
 
 
 def test_efforts_respect_the_torque_limit() -> None:

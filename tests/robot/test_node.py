@@ -93,3 +93,29 @@ def test_base_controller_node_end_to_end(make_context: Callable[..., Context]) -
         assert estop.call(SetBoolRequest(data=False), timeout=5.0).success
         # released: 0.2 m/s is 0.25 s of acceleration
         assert _drive_until(cmd, _twist(0.4, 0.0), odoms, lambda o: o.twist.twist.linear.x > 0.2, 5.0) is not None
+
+
+def test_base_brakes_at_once_when_the_driving_publisher_leaves(make_context: Callable[..., Context]) -> None:
+    """Issue 18, item 5: the teleop source's liveliness disappearing (its process ended, its link cut) stops the
+    base without waiting for the command timeout."""
+    config = RobotConfig(cmd_vel_timeout=5.0)  # long: only the liveliness can explain a prompt stop
+    with Node("base_controller", context=make_context(namespace="/c3po")) as robot_node:
+        controller_node = BaseControllerNode(robot_node, MotorModelDrive.from_config(config), config=config)
+        odoms: list[Any] = []
+        observer = Node("observer", context=make_context())
+        observer.create_subscription("nav_msgs/msg/Odometry", "/c3po/odom", odoms.append)
+        teleop_ctx = make_context()
+        bystander = Node("bystander", context=make_context()).create_publisher("geometry_msgs/msg/Twist", "/c3po/x")
+        cmd = Node("teleop", context=teleop_ctx).create_publisher("geometry_msgs/msg/Twist", "/c3po/cmd_vel")
+        assert wait_until(lambda: len(odoms) > 5 and cmd.matched_subscriptions > 0, 10.0)
+        last = _drive_until(cmd, _twist(0.4, 0.0), odoms, lambda o: o.twist.twist.linear.x > 0.3, 5.0)
+        assert last is not None
+        bystander.destroy()  # another publisher leaving changes nothing
+        time.sleep(0.3)
+        assert controller_node.sources_lost == 0 and odoms[-1].twist.twist.linear.x > 0.3
+        left = time.monotonic()
+        teleop_ctx.close()
+        assert wait_until(lambda: controller_node.sources_lost == 1, 2.0)
+        # 0.4 m/s at 1.5 m/s² is 0.27 s of braking; the 5 s timeout would keep it driving for seconds
+        assert wait_until(lambda: abs(odoms[-1].twist.twist.linear.x) < 0.01, 2.0)
+        assert time.monotonic() - left < 2.0

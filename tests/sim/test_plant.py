@@ -109,27 +109,28 @@ def test_noisy_depth_stays_on_the_floor_within_the_noise_model(facing_east_wall:
     assert abs(float(np.mean(floor[:, 2]))) < 0.005
 
 
-def test_watchdog_stops_the_robot_in_simulated_time() -> None:
+@pytest.mark.parametrize("speed", [0.3, 0.8])
+def test_watchdog_stops_the_robot_in_simulated_time(speed: float) -> None:
+    """The simulated robot stands within ``cmd_vel_timeout`` of the last command at any speed (issue 18, D6: it used to
+    keep full speed for the whole timeout and only then brake, 0.71-1.09 s). Measured: 0.46 s at 0.3 and 0.8 m/s."""
     config = SimConfig()
     with Plant(config, [RobotPlacement(name="bot", x=-10.0, y=-5.0, yaw=0.0)]) as plant:
-        for _ in range(100):  # 2 s of commands at 50 Hz
-            plant.command("bot", 0.4, 0.0)
+        for k in range(100):  # 2 s of commands at 25 Hz
+            if k % 2 == 0:
+                plant.command("bot", speed, 0.0)
+                last_command = plant.sim_time
             plant.step(0.02)
-        speed = plant.base_twist("bot")[0][0]
-        assert speed == pytest.approx(0.4, abs=0.05)  # the 10 % tracking spec (test_sim_tracking); 3e-4 measured
-        stop_at = plant.sim_time
+        # 0.8 m/s cannot be held at 25 Hz: each command must be brakeable within the timeout (0.66 m/s measured)
+        cruise = plant.base_twist("bot")[0][0]
+        assert cruise == pytest.approx(min(speed, 0.66), abs=0.05)
         timeout = config.robot.cmd_vel_timeout
-        plant.step(timeout * 0.8)
-        assert plant.base_twist("bot")[0][0] > 0.3  # still within the timeout: keeps going
-        braking = 0.4 / config.robot.linear.max_deceleration
-        plant.step(timeout * 0.2 + braking + 0.3)
-        assert plant.robot("bot").controller.timed_out(plant.sim_time)
-        assert abs(plant.base_twist("bot")[0][0]) < 0.02  # 5e-4 m/s measured 0.3 s after braking
+        while abs(plant.base_twist("bot")[0][0]) >= 0.01:
+            plant.step(0.01)
+            assert plant.sim_time - last_command <= timeout, f"still at {plant.base_twist('bot')[0][0]:.3f} m/s"
         x_stopped = plant.planar_pose("bot")[0]
         plant.step(1.0)
+        assert plant.robot("bot").controller.timed_out(plant.sim_time)
         assert abs(plant.planar_pose("bot")[0] - x_stopped) < 0.01  # 2e-5 m measured
-        # each step() ends on the 2 ms physics step (0.7 ms off here); 0.05 is well below the 0.5 s timeout
-        assert plant.sim_time - stop_at == pytest.approx(timeout + braking + 1.3, abs=0.05)
 
 
 def test_wheels_slip_on_a_slippery_floor() -> None:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -75,3 +78,102 @@ def test_images_are_decoded_with_their_row_step_and_byte_order() -> None:
     short = image(height=4, width=3, encoding="rgb8", is_bigendian=0, step=9, data=np.zeros(20, np.uint8))
     with pytest.raises(ValueError, match="does not fit"):
         image_to_array(short)
+
+
+def test_save_map_writes_only_plain_names_inside_the_maps_directory(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    from fleetslam.middleware.typesys import get_type
+
+    SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig(maps_dir=str(tmp_path / "maps")))
+    save = Node("operator", context=make_context()).create_client("fleetslam_msgs/srv/SaveMap", "/c3po/slam/save_map")
+    assert save.wait_for_service(5.0)
+    request = get_type("fleetslam_msgs/srv/SaveMap_Request")
+    (tmp_path / "victim.db").write_text("keep me")
+    for path in (str(tmp_path / "victim.db"), "../victim.db", "nested/dir/map.db", "map.bt"):
+        response = save.call(request(path=path), timeout=10)
+        assert not response.success and "save path" in response.message, (path, response.message)
+    assert (tmp_path / "victim.db").read_text() == "keep me" and not (tmp_path / "nested").exists()
+    response = save.call(request(path="c3po.db"), timeout=10)  # a fair name: refused only for want of a map
+    assert not response.success and response.message.startswith("nothing to save yet")
+    assert Path(response.path) == tmp_path / "maps" / "c3po.db"
+
+
+def test_images_and_odometry_stamped_far_in_the_future_do_not_stall_slam(
+    make_context: Callable[..., Context],
+) -> None:
+    """Issue 18, D1, replayed over a real router: 5 colour and 5 depth 8×6 images stamped far in the future (paired
+    and unpaired), and odometry stamped far in the future, sent into a node tracking a 5 Hz camera. Before: slam/odom
+    5 Hz → 0 and no wheel prior ever again; now the node goes on at the camera's rate with its priors."""
+    from fleetslam.datasets.base import Intrinsics
+    from fleetslam.middleware.typesys import get_type, header
+
+    from .textured_room import make_textures, render
+
+    slam = SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig())
+    camera = Node("camera", context=make_context("c3po"))
+    poses: list[float] = []
+    viewer = Node("viewer", context=make_context())
+    viewer.create_subscription("nav_msgs/msg/Odometry", "/c3po/slam/odom", lambda m: poses.append(time.monotonic()))
+    qos = QoSProfile(depth=5)
+    rgb_pub = camera.create_publisher("sensor_msgs/msg/Image", "camera/rgb/image_raw", qos)
+    depth_pub = camera.create_publisher("sensor_msgs/msg/Image", "camera/depth/image_raw", qos)
+    info_pub = camera.create_publisher("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", qos)
+    odom_pub = camera.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=50))
+    tf_pub = camera.create_publisher("tf2_msgs/msg/TFMessage", "tf_static", QoSProfile(durability="transient_local"))
+    base_camera = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
+    tf_pub.publish(transform_msg(base_camera, "base_link", "camera_optical_frame", 0))
+    intrinsics = Intrinsics(80.0, 80.0, 40.0, 30.0, 80, 60)
+    textures = make_textures(np.random.default_rng(0))
+    image = get_type("sensor_msgs/msg/Image")
+    info = message_from_dict(
+        "sensor_msgs/msg/CameraInfo",
+        {"width": 80, "height": 60, "distortion_model": "plumb_bob", "d": [0.0] * 5,
+         "k": [80.0, 0, 40.0, 0, 80.0, 30.0, 0, 0, 1]},
+    )  # fmt: skip
+
+    def images(stamp_ns: int, rgb: np.ndarray, depth: np.ndarray) -> tuple[Any, Any]:
+        h, w = depth.shape
+        return (
+            image(header=header("camera", stamp_ns), height=h, width=w, encoding="rgb8", is_bigendian=0, step=w * 3,
+                  data=np.ascontiguousarray(rgb).reshape(-1)),
+            image(header=header("camera", stamp_ns), height=h, width=w, encoding="32FC1", is_bigendian=0, step=w * 4,
+                  data=np.ascontiguousarray(depth, np.float32).view(np.uint8).reshape(-1)),
+        )  # fmt: skip
+
+    views = [render(pose_from_planar(0.01 * k, 0.0, 0.0) @ base_camera, intrinsics, textures) for k in range(20)]
+    start_ns = time.time_ns()
+    frame = 0
+
+    def stream(seconds: float) -> int:
+        """The camera and the wheels at 5 Hz for ``seconds``; returns the slam/odom messages meanwhile."""
+        nonlocal frame
+        before = len(poses)
+        for _ in range(round(seconds * 5)):
+            stamp_ns = start_ns + frame * 200_000_000
+            info_pub.publish(info)
+            odom_pub.publish(odometry(0.01 * (frame % 20), stamp_ns / 1e9))
+            rgb, depth = images(stamp_ns, *views[frame % 20])
+            rgb_pub.publish(rgb)
+            depth_pub.publish(depth)
+            frame += 1
+            time.sleep(0.2)
+        return len(poses) - before
+
+    assert wait_until(lambda: rgb_pub.matched_subscriptions > 0 and odom_pub.matched_subscriptions > 0, 10.0)
+    stream(2.0)  # the pipeline starts
+    before = stream(4.0)
+    assert before >= 10, before  # ~20 at 5 Hz; a busy machine may drop some
+    future_ns = time.time_ns() + 10**6 * 10**9  # 11.6 days ahead
+    tiny_rgb, tiny_depth = np.zeros((6, 8, 3), np.uint8), np.ones((6, 8), np.float32)
+    for k in range(5):
+        rgb, depth = images(future_ns + k, tiny_rgb, tiny_depth)
+        rgb_pub.publish(rgb)
+        depth_pub.publish(depth)  # pairs, stamped in the future
+        rgb_pub.publish(images(future_ns + 1000 + k, tiny_rgb, tiny_depth)[0])  # and halves that never pair
+        depth_pub.publish(images(future_ns + 2000 + k, tiny_rgb, tiny_depth)[1])
+        odom_pub.publish(odometry(50.0, future_ns / 1e9 + k))
+    priors = slam.priors_used
+    after = stream(4.0)
+    assert after >= 0.8 * before, (before, after)
+    assert slam.priors_used - priors >= 0.8 * after  # the wheel prior survived the forged stamps

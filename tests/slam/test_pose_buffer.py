@@ -31,3 +31,23 @@ def test_lookup_between_at_and_beyond_the_buffered_stamps() -> None:
     assert newest is not None and abs(newest[0, 3] - 1.45) < 1e-12
     assert buffer.at(1.45 + 0.06) is None  # beyond the tolerance: no prior rather than a stale one
     assert buffer.at(0.0) is None  # older than the horizon
+
+
+def test_one_far_future_stamp_is_held_aside_and_a_real_clock_jump_is_followed() -> None:
+    """Issue 18: one odometry message stamped far in the future used to evict every buffered pose, and every later
+    genuine one fell beyond the horizon at once: no wheel prior for SLAM ever again."""
+    buffer = PoseBuffer(horizon=1.0, tolerance=0.05, confirm=3)
+    for k in range(10):
+        buffer.add(10.0 + 0.05 * k, pose_from_planar(0.05 * k, 0.0, 0.0))
+    buffer.add(1e9, pose_from_planar(99.0, 0.0, 0.0))  # forged
+    buffer.add(-1e9, pose_from_planar(-99.0, 0.0, 0.0))  # forged, the other way
+    for k in range(10, 20):
+        buffer.add(10.0 + 0.05 * k, pose_from_planar(0.05 * k, 0.0, 0.0))
+    pose = buffer.at(10.9)
+    assert pose is not None and abs(pose[0, 3] - 0.9) < 1e-9 and buffer.newest_stamp == 10.95
+    assert buffer.jumps_ignored == 2
+    for k in range(3):  # the simulation restarted: its clock begins again at 0, and stays there
+        buffer.add(0.05 * k, pose_from_planar(5.0 + 0.05 * k, 0.0, 0.0))
+    assert buffer.newest_stamp == 0.1 and len(buffer) == 3
+    pose = buffer.at(0.05)
+    assert pose is not None and abs(pose[0, 3] - 5.05) < 1e-9

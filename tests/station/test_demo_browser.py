@@ -11,6 +11,7 @@ autopilot left the robot may run it into a wall.
 from __future__ import annotations
 
 import io
+import re
 import threading
 import time
 from pathlib import Path
@@ -45,10 +46,11 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
     page, errors = browser_page
     router_port, port = free_port(), free_port()
     stop = threading.Event()
+    output = io.StringIO()
     demo = threading.Thread(
         target=run_demo,
         kwargs={"robots": ["c3po", "r2d2"], "duration_s": 120.0, "out_dir": tmp_path / "demo", "port": port,
-                "router_port": router_port, "output": io.StringIO(), "stop": stop},
+                "router_port": router_port, "output": output, "stop": stop},
         daemon=True,
     )  # fmt: skip
     demo.start()
@@ -113,7 +115,9 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
                 )
 
             assert wait_until(lambda: sim_now() > 0, 90.0), "the demo's simulator never published ground truth"
-            page.goto(f"http://127.0.0.1:{port}/", timeout=60000)
+            console = re.search(r"operator console: (\S+)", output.getvalue())
+            assert console is not None, output.getvalue()  # the URL with the console's token
+            page.goto(console.group(1), timeout=60000)
             page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
             page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)
             assert page.evaluate("window.fleetslam.selected") == "c3po"

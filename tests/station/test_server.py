@@ -22,7 +22,7 @@ aiohttp = pytest.importorskip("aiohttp")
 
 async def _session(url: str, actions: Callable[[Any, list[dict[str, Any]]], Any]) -> list[dict[str, Any]]:
     received: list[dict[str, Any]] = []
-    async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+    async with aiohttp.ClientSession() as http, http.ws_connect(url) as ws:
 
         async def reader() -> None:
             async for frame in ws:
@@ -60,7 +60,7 @@ def test_console_streams_map_camera_and_drives(
                     break
                 await asyncio.sleep(0.1)
 
-        received = asyncio.run(_session(server.url, actions))
+        received = asyncio.run(_session(server.ws_url, actions))
     kinds = [m["type"] for m in received]
     assert (kinds[0] == "hello" and "c3po" in received[0]["agents"]) or any(
         m["type"] == "agents" and "c3po" in m["agents"] for m in received
@@ -91,7 +91,7 @@ def test_disconnect_while_driving_stops(make_context: Callable[..., Context], te
                 await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0.3, "w": 0.2, "deadman": True}))
                 await asyncio.sleep(0.05)
 
-        asyncio.run(_session(server.url, actions))
+        asyncio.run(_session(server.ws_url, actions))
         closed_at = time.time()
         # A disconnect releases at once: the zero goes out on the next 50 ms tick (it may precede `closed_at`), and
         # 0.2 s leaves three more ticks for a loaded machine.
@@ -99,3 +99,47 @@ def test_disconnect_while_driving_stops(make_context: Callable[..., Context], te
         time.sleep(0.5)
         late = [c for c in test_robot.commands if c[0] > closed_at + 0.2 and c[1] != 0.0]
         assert not late
+
+
+async def _handshake(url: str, headers: dict[str, str]) -> tuple[int, str]:
+    """Status of a WebSocket upgrade request (101: accepted) and the refusal's text."""
+    async with aiohttp.ClientSession() as http:
+        try:
+            async with http.ws_connect(url, headers=headers) as ws:
+                await ws.close()
+                return 101, ""
+        except aiohttp.WSServerHandshakeError as err:
+            return err.status, err.message
+
+
+def test_websocket_refuses_foreign_origins_and_missing_or_wrong_tokens(
+    make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    """Issue 18: the console's WebSocket accepted a connection claiming Origin http://evil.example and drove c3po."""
+    with StationServer(make_context(), port=0) as server:
+        own = f"http://{server.host}:{server.port}"
+        plain = f"ws://{server.host}:{server.port}/ws"
+        refused = {
+            "foreign page with the token": (server.ws_url, {"Origin": "http://evil.example"}),
+            "DNS rebinding (own origin, no token)": (
+                plain,
+                {"Origin": "http://evil.example:80", "Host": "evil.example:80"},
+            ),
+            "own origin, no token": (plain, {"Origin": own}),
+            "own origin, wrong token": (plain + "?token=" + "x" * 22, {"Origin": own}),
+            "program, no token": (plain, {}),
+        }
+        for what, (url, headers) in refused.items():
+            assert asyncio.run(_handshake(url, headers))[0] == 403, what
+        assert server.refused == len(refused)
+
+        async def drive(ws: Any, received: list[dict[str, Any]]) -> None:
+            await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0.2, "w": 0.0, "deadman": True}))
+            await asyncio.sleep(1.0)
+            await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0.0, "w": 0.0, "deadman": False}))
+
+        assert not any(v for _, v, _ in test_robot.commands)  # nothing reached the robot from the refused ones
+        for headers in ({"Origin": own}, {}):  # the console's page, and a program with the token
+            assert asyncio.run(_handshake(server.ws_url, headers))[0] == 101
+        asyncio.run(_session(server.ws_url, drive))
+        assert wait_until(lambda: any(v > 0.05 for _, v, _ in test_robot.commands), 5.0)

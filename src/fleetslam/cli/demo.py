@@ -25,6 +25,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--route", default="loop", help="autopilot route every robot patrols, lap after lap (fleetslam robot routes)"
     )
+    parser.add_argument(
+        "--secure", action="store_true",
+        help="make a keystore in the results folder; every process joins by mutual TLS under access control",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
@@ -34,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(
         robots=robots, duration_s=args.duration, out_dir=out, port=args.port, router_port=args.router_port,
         headless=args.headless, mode=args.mode, resolution=args.resolution, camera_hz=args.camera_hz,
-        route=args.route,
+        route=args.route, secure=args.secure,
     )  # fmt: skip
     for robot, value in sorted(result.ate.items()):
         print(f"ATE {robot}: {value:.3f} m (SLAM vs ground truth, aligned)")

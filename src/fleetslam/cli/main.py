@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("fleetslam.cli.launch", "launch and supervise a fleet from a YAML description"),
     "station": ("fleetslam.cli.station", "run the operator web console"),
     "config": ("fleetslam.cli.config", "print the default configuration with documentation"),
+    "security": ("fleetslam.cli.security", "make a fleet's certificates and secured Zenoh configs"),
 }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
+from pathlib import Path
 
 from fleetslam.middleware.router import DEFAULT_ROUTER_LISTEN, Router
 
@@ -17,13 +18,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help=f"endpoint to listen on, repeatable (default {DEFAULT_ROUTER_LISTEN[0]})",
     )
     parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers")
+    parser.add_argument(
+        "--security", type=Path, metavar="DIR",
+        help="keystore of 'fleetslam security init': mutual TLS on its tls/ endpoint and the fleet's access control",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with Router(args.listen or list(DEFAULT_ROUTER_LISTEN), connect=args.connect) as router:
+    listen = args.listen or (None if args.security else list(DEFAULT_ROUTER_LISTEN))
+    with Router(listen, connect=args.connect, security=args.security) as router:
         print(f"fleetslam router {router.zid} listening on {', '.join(router.listen)} (Ctrl-C to stop)", flush=True)
         try:
             while not stop.wait(0.5):

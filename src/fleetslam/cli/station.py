@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import threading
 
+from fleetslam.errors import ConfigError
 from fleetslam.middleware import Context
+from fleetslam.station.access import ConsoleAccess
 from fleetslam.station.protocol import TeleopLimits
 from fleetslam.station.server import StationServer
 
@@ -17,6 +20,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     parser.add_argument("--max-linear", type=float, default=0.5, help="speed limit for teleoperation (m/s)")
     parser.add_argument("--max-angular", type=float, default=1.2, help="turn-rate limit (rad/s)")
+    parser.add_argument(
+        "--token",
+        default=os.environ.get("FLEETSLAM_STATION_TOKEN"),
+        help="secret the WebSocket asks for, part of the printed URL (default: $FLEETSLAM_STATION_TOKEN, else random)",
+    )
+    parser.add_argument(
+        "--allow-origin", action="append", default=[], metavar="URL",
+        help="another origin (scheme://host:port) whose pages may use the console, e.g. behind a reverse proxy",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
@@ -24,7 +36,11 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     limits = TeleopLimits(max_linear=args.max_linear, max_angular=args.max_angular)
-    with Context() as ctx, StationServer(ctx, host=args.host, port=args.port, limits=limits) as server:
+    try:
+        access = ConsoleAccess.create(args.token, args.allow_origin)
+    except ValueError as err:
+        raise ConfigError(f"--token / FLEETSLAM_STATION_TOKEN: {err}") from err
+    with Context() as ctx, StationServer(ctx, host=args.host, port=args.port, limits=limits, access=access) as server:
         print(f"operator console: {server.url}", flush=True)
         with contextlib.suppress(KeyboardInterrupt):
             stop.wait()

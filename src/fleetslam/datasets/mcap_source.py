@@ -12,6 +12,7 @@ camera's mounting from ``tf_static``, interpolated at the frames' stamps. Topics
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable, Iterator
 from functools import partial
@@ -50,6 +51,18 @@ def _reader(path: Path) -> Any:
     except ImportError as err:
         raise MissingExtraError("mcap", "record") from err
     return make_reader
+
+
+@contextlib.contextmanager
+def _unreadable_as_dataset_error(path: Path) -> Iterator[None]:
+    """A garbage or truncated file makes the mcap library raise anything from its own errors to struct's and
+    zstd's: one DatasetError naming the file instead."""
+    try:
+        yield
+    except DatasetError:
+        raise
+    except Exception as err:  # mcap.exceptions.McapError, struct.error, EOFError, ValueError, zstd/lz4 errors
+        raise DatasetError(f"{path}: not a readable MCAP file ({type(err).__name__}: {err})") from err
 
 
 def image_to_array(msg: Any, where: str) -> NDArray[Any]:
@@ -98,7 +111,7 @@ class McapSource:
         self._tf_static_topics: list[str] = []
         info_topic: str | None = None
         make_reader = _reader(path)
-        with path.open("rb") as f:
+        with path.open("rb") as f, _unreadable_as_dataset_error(path):
             summary = make_reader(f).get_summary()
         if summary is None:
             raise DatasetError(f"{path}: MCAP file has no summary (unfinished recording?)")
@@ -135,9 +148,15 @@ class McapSource:
     def _raw_messages(self, topics: list[str]) -> Iterator[tuple[str, Callable[[], Any]]]:
         """Messages in log order, each with a function that decodes it (skipped messages cost no decoding)."""
         make_reader = _reader(self.path)
-        with self.path.open("rb") as f:
+        with self.path.open("rb") as f, _unreadable_as_dataset_error(self.path):
             for schema, channel, message in make_reader(f).iter_messages(topics=topics):
-                yield channel.topic, partial(self._store.deserialize_cdr, bytes(message.data), schema.name)
+                yield channel.topic, partial(self._decode, bytes(message.data), schema.name, channel.topic)
+
+    def _decode(self, data: bytes, type_name: str, topic: str) -> Any:
+        try:
+            return self._store.deserialize_cdr(data, type_name)
+        except Exception as err:  # rosbags' SerdeError, struct.error, ...: a corrupt message
+            raise DatasetError(f"{self.path}: a {type_name} message on {topic} cannot be decoded: {err}") from err
 
     def _pair_index(self) -> list[tuple[int, int]]:
         # Stamps only on this pass; images are decoded again while iterating to keep memory flat.

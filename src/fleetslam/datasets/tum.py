@@ -170,7 +170,30 @@ def load_depth(path: Path, depth_scale: float) -> NDArray[np.float32]:
         raise DatasetError(f"{path}: cannot read depth image")
     if raw.ndim != 2:
         raise DatasetError(f"{path}: depth image must have one channel, got shape {raw.shape}")
+    if raw.dtype != np.uint16:
+        # A float image (32-bit TIFF in metres) divided by the TUM scale is a flat world 5000 times too near: SLAM
+        # would return an identity trajectory without a word. Say so instead of guessing the unit.
+        raise DatasetError(
+            f"{path}: depth image is {raw.dtype}, TUM depth is 16-bit integers of 1/{depth_scale:g} m; "
+            "convert it (metres × scale, as uint16 PNG)"
+        )
     return (raw.astype(np.float32) / np.float32(depth_scale)).astype(np.float32)
+
+
+def check_depth_scale(depth_m: NDArray[np.float32], path: Path, depth_scale: float) -> None:
+    """Warn loudly when a frame's depths cannot be a camera's at this scale (none valid, or a median nearer than
+    0.5 m or farther than 20 m: typically millimetre data read with TUM's 5000 per metre, which puts a room 0.1-1 m
+    away)."""
+    valid = depth_m[depth_m > 0]
+    if valid.size == 0:
+        logger.warning("%s: no valid depth in the first frame; is this a depth image?", path)
+        return
+    median = float(np.median(valid))
+    if not 0.5 <= median <= 20.0:
+        logger.warning(
+            "%s: median depth %.3f m at depth_scale %g is not a camera's; millimetre data needs depth_scale 1000 "
+            "(the 7th number of the intrinsics file)", path, median, depth_scale,
+        )  # fmt: skip
 
 
 class TumSource:
@@ -212,7 +235,10 @@ class TumSource:
     def frames(self, every: int = 1) -> Iterator[RGBDFrame]:
         for index in range(0, len(self._pairs), every):
             stamp, rgb_path, depth_path = self._pairs[index]
-            yield RGBDFrame(index, stamp, load_rgb(rgb_path), load_depth(depth_path, self.depth_scale))
+            depth = load_depth(depth_path, self.depth_scale)
+            if index == 0:
+                check_depth_scale(depth, depth_path, self.depth_scale)
+            yield RGBDFrame(index, stamp, load_rgb(rgb_path), depth)
 
     def groundtruth(self) -> Trajectory | None:
         return self._groundtruth

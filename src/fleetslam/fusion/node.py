@@ -12,19 +12,20 @@ from __future__ import annotations
 
 import logging
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pydantic import Field
 
 from fleetslam.config import ConfigModel
+from fleetslam.errors import UnsafePathError
 from fleetslam.fusion.fleet_map import FleetMap
 from fleetslam.geometry import pose_from_xyz_rpy
 from fleetslam.mapping.node import PublishPacer, pointcloud2_msg
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
 from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +46,11 @@ class FleetMapConfig(ConfigModel):
     followed by the next one no sooner than t / max_publish_load s later."""
     frame_id: str = "fleet"
     """Frame of the fused map."""
+    maps_dir: str = "maps"
+    """The only directory the save service writes to (created when needed; relative to the working directory).
+    Requests name a plain file inside it, never a path."""
     save_path: str = "fleet.bt"
-    """Default file of the save service."""
+    """Default file name of the save service, inside ``maps_dir``."""
 
 
 class FleetMapNode:
@@ -142,10 +146,13 @@ class FleetMapNode:
 
     def on_save(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
-        path = Path(request.path or self.config.save_path)
+        name = request.path or self.config.save_path
+        try:
+            path = save_path(self.config.maps_dir, name, suffixes=(".bt",))
+        except (UnsafePathError, OSError) as err:
+            return response(success=False, message=str(err), path=name)
         self.fuse_pending()
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
             written = self.fleet.fused().write_binary(path)
         except OSError as err:
             return response(success=False, message=f"{path}: {err.strerror}", path=str(path))

@@ -36,6 +36,7 @@ from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
+from fleetslam.station.access import new_token
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,16 @@ class DemoResult:
         return totals
 
 
-def _agent_processes(robots: list[str], router: str) -> list[ProcessSpec]:
+def _fleet_env(router: str, security: Path | None, identity: str | None = None) -> dict[str, str]:
+    """How a demo process joins: the router's endpoint, and with a keystore its folder and the identity it uses
+    (agents default to their own, from FLEETSLAM_AGENT)."""
+    if security is None:
+        return {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_SECURITY": str(security)}
+    return {**env, "FLEETSLAM_IDENTITY": identity} if identity else env
+
+
+def _agent_processes(robots: list[str], router: str, security: Path | None = None) -> list[ProcessSpec]:
     processes = []
     for i, robot in enumerate(robots):
         peers = [r for r in robots if r != robot]
@@ -89,11 +99,7 @@ def _agent_processes(robots: list[str], router: str) -> list[ProcessSpec]:
                     str(cx),
                     str(cy),
                 ],
-                environment={
-                    "FLEETSLAM_ROUTER": router,
-                    "FLEETSLAM_AGENT": robot,
-                    "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0",
-                },
+                environment={**_fleet_env(router, security), "FLEETSLAM_AGENT": robot},
                 restart=RestartPolicy(initial_backoff_s=1.0),
             )
         )
@@ -133,44 +139,56 @@ _ONE_NUMBA_THREAD = {"NUMBA_NUM_THREADS": "1"}
 _MAP_NICENESS = 10
 
 
-def _station_process(router: str, port: int) -> ProcessSpec:
+def _station_process(env: dict[str, str], port: int, token: str) -> ProcessSpec:
     """The operator console in a process of its own: its encoding and WebSocket traffic are not the monitor's to
-    pay for (the report shows each), and a console that fails restarts without stopping the demo."""
+    pay for (the report shows each), and a console that fails restarts without stopping the demo (with the same
+    token, so an open page reconnects)."""
     return ProcessSpec(label="station", host="localhost", argv=_fleetslam("station", "--port", str(port)),
-                       environment={"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"},
-                       restart=RestartPolicy())  # fmt: skip
+                       environment={**env, "FLEETSLAM_STATION_TOKEN": token}, restart=RestartPolicy())  # fmt: skip
 
 
 def _sim_processes(
-    robots: list[str], router: str, out_dir: Path, resolution: str, camera_hz: float = 10.0, route: str = "loop"
+    robots: list[str],
+    router: str,
+    out_dir: Path,
+    resolution: str,
+    camera_hz: float = 10.0,
+    route: str = "loop",
+    security: Path | None = None,
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
-    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    env = _fleet_env(router, security)
+    # The fleet map and the simulator (every robot's sensors, /clock) act for the whole fleet: the station's identity.
+    fleet_env = _fleet_env(router, security, "station")
+    maps_dir = f"maps_dir={(out_dir / 'maps').resolve()}"  # the only place the save services write to
     processes = []
     for robot in robots:
         agent_env = {**env, "FLEETSLAM_AGENT": robot}
         peers = "[" + ",".join(r for r in robots if r != robot) + "]"
         # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend.
         processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
-                                     argv=_fleetslam("slam", "node", "--set", f"peers={peers}"),
+                                     argv=_fleetslam("slam", "node", "--set", f"peers={peers}", "--set", maps_dir),
                                      environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
                                      restart=RestartPolicy()))  # fmt: skip
-        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost", argv=_fleetslam("map", "node"),
+        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost",
+                                     argv=_fleetslam("map", "node", "--set", maps_dir),
                                      environment={**agent_env, **_ONE_NUMBA_THREAD},
                                      restart=RestartPolicy(), niceness=_MAP_NICENESS))  # fmt: skip
     fleet_config = out_dir / "fleet_map.yaml"
     import yaml
 
     poses, extrinsics = start_poses(robots)
-    fleet_config.write_text(yaml.safe_dump({"start_poses": poses, "agents": robots}))
+    fleet_config.write_text(
+        yaml.safe_dump({"start_poses": poses, "agents": robots, "maps_dir": str((out_dir / "maps").resolve())})
+    )
     processes.append(ProcessSpec(label="fleet_map", host="localhost",
                                  argv=_fleetslam("fleet", "node", "--config", str(fleet_config)),
-                                 environment={**env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy(),
+                                 environment={**fleet_env, **_ONE_NUMBA_THREAD}, restart=RestartPolicy(),
                                  niceness=_MAP_NICENESS))  # fmt: skip
     processes.append(ProcessSpec(label="sim", host="localhost",
                                  argv=_fleetslam("sim", "run", "--robots", ",".join(robots), "--camera-hz",
                                                  f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
                                                  "--laps"),
-                                 environment={**env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+                                 environment={**fleet_env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
                                  restart=RestartPolicy()))  # fmt: skip
     return processes, extrinsics
 
@@ -339,24 +357,41 @@ def run_demo(
     route: str = "loop",
     output: TextIO = sys.stdout,
     stop: threading.Event | None = None,
+    secure: bool = False,
+    console_token: str | None = None,
 ) -> DemoResult:
     """Run the demo until ``duration_s`` passes (None: until Ctrl-C) or ``stop`` is set, then write the results
-    to ``out_dir``."""
+    to ``out_dir``. With ``secure``, a keystore is made in ``out_dir/keys`` and every process joins the router by
+    mutual TLS under its access control (docs/security.md). The console's WebSocket asks for ``console_token``
+    (random when None); its URL, with the token, is printed once the console accepts connections."""
     stop = stop or threading.Event()
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    security: Path | None = None
+    if secure:
+        from fleetslam.middleware.context import MAX_MESSAGE_BYTES
+        from fleetslam.security.keystore import init_keystore
+
+        security = (out_dir / "keys").resolve()
+        init_keystore(security, agents=robots, stations=["station"], router_port=router_port,
+                      max_message_bytes=MAX_MESSAGE_BYTES)  # fmt: skip
+        endpoint = f"tls/localhost:{router_port}"
+        print(f"[demo] secured: keystore in {security}, router on {endpoint}", file=output, flush=True)
     if mode == "sim":
         print("[demo] preparing the simulated plant", file=output, flush=True)
-        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route)
+        processes, extrinsics = _sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route, security)
     else:
-        processes, extrinsics = _agent_processes(robots, endpoint), {}
+        processes, extrinsics = _agent_processes(robots, endpoint, security), {}
+    own_env = _fleet_env(endpoint, security, "station")
+    console_url = None
     if not headless:
-        processes.append(_station_process(endpoint, port))
-    console_url = None if headless else f"http://127.0.0.1:{port}/"
-    with RouterProcess(endpoint) as router:
+        token = console_token or new_token()
+        processes.append(_station_process(own_env, port, token))
+        console_url = f"http://127.0.0.1:{port}/?token={token}"
+    with RouterProcess(endpoint, security=security) as router:
         log_file = open(out_dir / "processes.log", "w")  # noqa: SIM115
         supervisor = Supervisor(processes, output=log_file)
-        with Context(router=endpoint, listen="tcp/127.0.0.1:0", namespace="/") as ctx:
+        with Context(namespace="/", environ={**os.environ, **own_env}) as ctx:
             monitor = _Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
             start = time.monotonic()
             own_start = sample_process(os.getpid())
@@ -393,7 +428,7 @@ def run_demo(
             if router_usage is not None:
                 usage.insert(1, router_usage)
             if mode == "sim":
-                _save_maps(monitor.node, robots, out_dir / "maps", output)
+                _save_maps(monitor.node, robots, output)
             supervisor.stop()
             supervisor_thread.join(10)
             log_file.close()
@@ -411,14 +446,15 @@ def run_demo(
     return result
 
 
-def _save_maps(node: Node, robots: list[str], maps_dir: Path, output: TextIO) -> None:
+def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
+    """Ask every map node to save its map as ``<name>.bt`` in its maps directory (the demo's ``maps/``)."""
     from fleetslam.middleware.typesys import get_type
 
     request = get_type("fleetslam_msgs/srv/SaveMap_Request")
     for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:
         client = node.create_client("fleetslam_msgs/srv/SaveMap", service)
         try:
-            response = client.call(request(path=str(maps_dir / f"{name}.bt")), timeout=30.0)
+            response = client.call(request(path=f"{name}.bt"), timeout=30.0)
             print(f"[demo] map {name}: {response.message} -> {response.path}", file=output, flush=True)
         except Exception as err:  # a node that never got data answers late or not at all
             print(f"[demo] map {name} not saved: {err}", file=output, flush=True)

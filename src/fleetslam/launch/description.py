@@ -33,7 +33,9 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from fleetslam.config import ConfigModel, load_config
+from fleetslam.config import ConfigModel, load_config, read_yaml
+from fleetslam.errors import ConfigError
+from fleetslam.middleware.context import check_endpoint
 
 _NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 
@@ -49,6 +51,16 @@ class RouterSpec(ConfigModel):
     """Endpoints the router listens on."""
     embedded: bool = True
     """Start the router as one of the supervised processes when launching on its host."""
+
+    @field_validator("endpoint")
+    @classmethod
+    def _endpoints(cls, endpoint: str) -> str:
+        return ",".join(check_endpoint(e) for e in endpoint.split(","))
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, listen: list[str]) -> list[str]:
+        return [check_endpoint(e) for e in listen]
 
 
 class RestartPolicy(ConfigModel):
@@ -105,6 +117,12 @@ class AgentSpec(ConfigModel):
     """Host that runs the agent's nodes."""
     listen: str | None = None
     """This host's listen endpoint (FLEETSLAM_LISTEN), e.g. tcp/10.1.2.10:0."""
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, listen: str | None) -> str | None:
+        return None if listen is None else check_endpoint(listen)
+
     environment: dict[str, str] = Field(default_factory=dict)
     """Environment variables for every node of the agent."""
     nodes: list[NodeSpec] = Field(default_factory=list)
@@ -124,6 +142,17 @@ class FleetDescription(ConfigModel):
     """The agents."""
     hosts_nodes: list[NodeSpec] = Field(default_factory=list)
     """Nodes outside any agent namespace (station, fleet map); each names its host."""
+    security: str = ""
+    """Keystore made by ``fleetslam security init``, at this path on every host (each host needs only its own
+    folder of it): the router runs with ``--security``, every process gets ``FLEETSLAM_SECURITY``; agents' nodes
+    act as their agent, host-level nodes as ``station``. ``router.endpoint`` must then be a ``tls/`` endpoint.
+    Empty: an open fleet (docs/security.md)."""
+
+    @model_validator(mode="after")
+    def _secured_router_is_tls(self) -> FleetDescription:
+        if self.security and not all(e.strip().startswith("tls/") for e in self.router.endpoint.split(",")):
+            raise ValueError(f"with security, router.endpoint must be tls/..., got {self.router.endpoint!r}")
+        return self
 
     @field_validator("agents")
     @classmethod
@@ -136,7 +165,10 @@ class FleetDescription(ConfigModel):
 
 
 def load_fleet(path: str | Path, overrides: list[str] | None = None) -> FleetDescription:
-    """Read and validate a fleet file; errors name the file, the key and the value."""
+    """Read and validate a fleet file; errors name the file, the key and the value. An empty file is an error (it
+    would describe a lone router listening on every interface)."""
+    if not read_yaml(path) and not overrides:
+        raise ConfigError(f"{path}: empty fleet file; describe at least one agent (see examples/)")
     return load_config(FleetDescription, path, overrides=overrides)
 
 
@@ -181,14 +213,21 @@ def resolve_processes(fleet: FleetDescription, *, python: str | None = None) -> 
         "FLEETSLAM_ROUTER": fleet.router.endpoint,
         "ROS_DOMAIN_ID": str(fleet.domain_id),
     }
+    host_identity = {}
+    if fleet.security:
+        base_env["FLEETSLAM_SECURITY"] = fleet.security
+        host_identity["FLEETSLAM_IDENTITY"] = "station"
     processes: list[ProcessSpec] = []
     if fleet.router.embedded:
-        listen_args = [arg for endpoint in fleet.router.listen for arg in ("--listen", endpoint)]
+        # A secured router listens where its keystore says, unless the file names listen endpoints itself.
+        listen = fleet.router.listen if not fleet.security or "listen" in fleet.router.model_fields_set else []
+        listen_args = [arg for endpoint in listen for arg in ("--listen", endpoint)]
+        security_args = ["--security", fleet.security] if fleet.security else []
         processes.append(
             ProcessSpec(
                 label="router",
                 host=fleet.router.host,
-                argv=[python, "-m", "fleetslam.cli.main", "router", *listen_args],
+                argv=[python, "-m", "fleetslam.cli.main", "router", *listen_args, *security_args],
                 environment=dict(fleet.environment),
                 restart=RestartPolicy(mode="always"),
             )
@@ -213,7 +252,7 @@ def resolve_processes(fleet: FleetDescription, *, python: str | None = None) -> 
                 label=node.name,
                 host=node.host or fleet.router.host,
                 argv=_argv(node, python),
-                environment={**base_env, **node.environment},
+                environment={**base_env, **host_identity, **node.environment},
                 restart=node.restart,
             )
         )

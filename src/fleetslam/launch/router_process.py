@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 from types import TracebackType
 
 from fleetslam.errors import MiddlewareError
@@ -19,30 +20,33 @@ from fleetslam.launch.supervisor import ProcessSample, ProcessUsage, _parent_dea
 
 
 def _tcp_port(endpoint: str) -> tuple[str, int]:
-    """Host and port of a ``tcp/HOST:PORT`` endpoint."""
-    if not endpoint.startswith("tcp/") or ":" not in endpoint:
-        raise MiddlewareError(f"the router process needs a tcp/HOST:PORT endpoint, not {endpoint!r}")
-    host, _, port = endpoint[4:].rpartition(":")
+    """Host and port of a ``tcp/HOST:PORT`` or ``tls/HOST:PORT`` endpoint."""
+    scheme, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    if scheme not in ("tcp", "tls") or not host or not port.isdigit():
+        raise MiddlewareError(f"the router process needs a tcp/HOST:PORT or tls/HOST:PORT endpoint, not {endpoint!r}")
     return host.strip("[]"), int(port)
 
 
 class RouterProcess:
-    """``fleetslam router --listen ENDPOINT`` in a child process; a context manager.
+    """``fleetslam router --listen ENDPOINT`` (with ``security``: ``--security DIR``, whose router config listens
+    on ENDPOINT) in a child process; a context manager.
 
     Raises:
         MiddlewareError: the port is taken, or the router did not accept connections within ``start_timeout_s``
             (its output says why).
     """
 
-    def __init__(self, endpoint: str, *, start_timeout_s: float = 20.0) -> None:
+    def __init__(self, endpoint: str, *, security: Path | None = None, start_timeout_s: float = 20.0) -> None:
         self.endpoint = endpoint
         host, port = _tcp_port(endpoint)
         if accepts_connections(host, port):
             raise MiddlewareError(f"cannot start the router on {endpoint}: something already listens there")
         # Its output goes to a file, not a pipe nobody drains (a full pipe would block the router).
         self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed in _stop)
+        where = ["--listen", endpoint] if security is None else ["--security", str(security)]
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "fleetslam.cli.main", "router", "--listen", endpoint],
+            [sys.executable, "-m", "fleetslam.cli.main", "router", *where],
             stdout=self._log, stderr=subprocess.STDOUT, preexec_fn=_parent_death_signal(),
         )  # fmt: skip
         deadline = time.monotonic() + start_timeout_s

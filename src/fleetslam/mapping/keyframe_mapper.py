@@ -140,6 +140,21 @@ class KeyframeMapper:
     def tolerance(self) -> float:
         return self.config.resolution / 2 if self.move_tolerance is None else self.move_tolerance
 
+    def _pose_is_valid(self, pose: NDArray[np.floating]) -> bool:
+        """A finite 4×4 rigid transform whose origin lies inside the octree's key range."""
+        matrix = np.asarray(pose, dtype=np.float64)
+        if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+            return False
+        rotation = matrix[:3, :3]
+        rigid = np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3) and np.linalg.det(rotation) > 0
+        inside = bool(np.abs(matrix[:3, 3]).max() < self.config.resolution * TREE_MAX_VAL)
+        return bool(rigid) and inside
+
+    def _checked_pose(self, keyframe_id: int, pose: NDArray[np.floating]) -> NDArray[np.float64]:
+        if not self._pose_is_valid(pose):
+            raise ValueError(f"keyframe {keyframe_id}: pose is not a finite rigid transform inside the map")
+        return np.asarray(pose, dtype=np.float64)
+
     @property
     def pending(self) -> int:
         """Keyframes waiting to be inserted or integrated again."""
@@ -148,9 +163,13 @@ class KeyframeMapper:
     def add_keyframe(self, keyframe_id: int, points_camera: NDArray[np.floating], pose: NDArray[np.floating]) -> None:
         """A new keyframe (points in its camera frame, pose T_map_camera); integrated by :meth:`integrate`.
 
-        A pose the graph gave for it before it arrived is newer than its own and wins.
+        A pose the graph gave for it before it arrived is newer than its own and wins. A pose that is not a
+        finite rigid transform inside the map raises ValueError (and changes nothing: one bad keyframe must not
+        poison every later integration); points that are not finite are left out.
         """
+        pose = self._checked_pose(keyframe_id, pose)
         points = np.asarray(points_camera, dtype=np.float32).reshape(-1, 3)
+        points = points[np.isfinite(points).all(axis=1)]
         reach = float(np.sqrt((points.astype(np.float64) ** 2).sum(axis=1).max())) if len(points) else 0.0
         graph_pose = self._graph_poses.pop(keyframe_id, None)
         scan = _KeyframeScan(points, np.asarray(pose if graph_pose is None else graph_pose, dtype=np.float64), reach)
@@ -164,7 +183,11 @@ class KeyframeMapper:
 
     def update_poses(self, poses: dict[int, NDArray[np.floating]]) -> int:
         """New (optimised) poses; returns how many integrated keyframes now wait to be integrated again because
-        their scan moved beyond the tolerance (since it was integrated)."""
+        their scan moved beyond the tolerance (since it was integrated). Raises ValueError naming the keyframes
+        whose pose is not a finite rigid transform inside the map, before changing anything."""
+        bad = [i for i, pose in poses.items() if not self._pose_is_valid(pose)]
+        if bad:
+            raise ValueError(f"graph poses of keyframes {bad[:10]} are not finite rigid transforms inside the map")
         integrated: list[int] = []
         for keyframe_id, pose in poses.items():
             scan = self.scans.get(keyframe_id)

@@ -16,7 +16,6 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,6 +23,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from fleetslam.config import ConfigModel
+from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
@@ -32,6 +32,7 @@ from fleetslam.mapping.products import cube_list_markers, pointcloud2_fields_and
 from fleetslam.middleware import Node, Publisher, QoSProfile
 from fleetslam.middleware.conversions import pose_matrix
 from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +60,11 @@ class MappingNodeConfig(ConfigModel):
     """Lowest voxel centre projected into the 2D grid (m)."""
     grid_z_max: float = 1.8
     """Highest voxel centre projected into the 2D grid (m)."""
+    maps_dir: str = "maps"
+    """The only directory the map/save service writes to (created when needed; relative to the working
+    directory). Requests name a plain file inside it, never a path."""
     save_path: str = "map.bt"
-    """Default file of the map/save service."""
+    """Default file name of the map/save service, inside ``maps_dir`` (``.bt`` binary or ``.ot`` full octree)."""
 
 
 def decode_depth(msg: Any) -> np.ndarray | None:
@@ -123,6 +127,8 @@ class MappingNode:
         self._centres: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
         self._pacer = PublishPacer(self.config.max_publish_load)
         self._next_reintegration = -math.inf
+        self.rejected = 0
+        """Keyframes and graphs left out because they were malformed (non-finite or invalid poses)."""
         latched = QoSProfile(durability="transient_local", depth=1)
         self._products: dict[str, tuple[Publisher, Callable[[Any], Any]]] = {
             "octomap": (node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched), self._octomap),
@@ -150,7 +156,15 @@ class MappingNode:
             depth, float(k[0]), float(k[4]), float(k[2]), float(k[5]), stride=self.config.pixel_stride,
             max_depth=self.config.max_depth,
         )  # fmt: skip
-        self.mapper.add_keyframe(int(msg.id), points, pose_matrix(msg.pose))
+        try:
+            self.mapper.add_keyframe(int(msg.id), points, pose_matrix(msg.pose))
+        except ValueError as err:  # a NaN position, a zero quaternion: this keyframe is left out, the map goes on
+            self._reject(f"keyframe {msg.id} from {msg.agent!r}", err)
+
+    def _reject(self, what: str, err: Exception) -> None:
+        self.rejected += 1
+        if self.rejected in (1, 10, 100) or self.rejected % 1000 == 0:
+            log.warning("%s ignored (%d inputs ignored so far): %s", what, self.rejected, err)
 
     def on_graph_data(self, data: bytes) -> None:
         """Keep the latest graph's bytes: it supersedes every earlier one."""
@@ -172,7 +186,10 @@ class MappingNode:
     def on_timer(self) -> None:
         if self._latest_graph is not None:
             data, self._latest_graph = self._latest_graph, None
-            self.on_graph(deserialize(data, "fleetslam_msgs/msg/KeyframeGraph"))
+            try:
+                self.on_graph(deserialize(data, "fleetslam_msgs/msg/KeyframeGraph"))
+            except (MessageError, ValueError) as err:
+                self._reject("graph", err)
         if self.mapper.pending:
             self._integrate(moved=time.monotonic() >= self._next_reintegration)
         if self._pacer.due():
@@ -275,10 +292,13 @@ class MappingNode:
     # -- services -----------------------------------------------------------------------------------------------
     def on_save(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
-        path = Path(request.path or self.config.save_path)
+        name = request.path or self.config.save_path
+        try:
+            path = save_path(self.config.maps_dir, name, suffixes=(".bt", ".ot"))
+        except (UnsafePathError, OSError) as err:
+            return response(success=False, message=str(err), path=name)
         try:
             self._integrate()
-            path.parent.mkdir(parents=True, exist_ok=True)
             tree = self.mapper.tree
             written = tree.write(path) if path.suffix == ".ot" else tree.write_binary(path)
         except OSError as err:
@@ -291,6 +311,10 @@ class MappingNode:
     def on_clear_bbx(self, request: Any) -> Any:
         lo = [request.min.x, request.min.y, request.min.z]
         hi = [request.max.x, request.max.y, request.max.z]
+        if not np.isfinite([*lo, *hi]).all():
+            return get_type("fleetslam_msgs/srv/ClearBbx_Response")(
+                success=False, message=f"box corners must be finite, got min {lo} max {hi}"
+            )
         cleared = self.mapper.tree.clear_bbox(lo, hi)
         self._version += 1
         self.publish()

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import logging
 import math
 import struct
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +34,8 @@ from numpy.typing import ArrayLike, NDArray
 from fleetslam.datasets.base import LOADERS as DATASET_LOADERS
 from fleetslam.datasets.base import guess_kind
 from fleetslam.errors import DatasetError
+
+log = logging.getLogger(__name__)
 
 _POINT = np.dtype([("tag", "<i4"), ("xyz", "<f8", (3,))])
 _POSE = struct.Struct("<i3di4d")
@@ -289,8 +293,10 @@ def _read_text(path: str | Path) -> str:
             raw = gzip.decompress(p.read_bytes())
         else:
             raw = p.read_bytes()
-    except OSError as err:
+    except OSError as err:  # also gzip's BadGzipFile
         raise DatasetError(f"{path}: cannot read: {err}") from err
+    except (EOFError, ValueError, zlib.error) as err:  # a truncated or corrupt .bz2/.gz
+        raise DatasetError(f"{path}: corrupt or truncated {p.suffix} file: {err}") from err
     return raw.decode("utf-8", errors="replace")
 
 
@@ -328,7 +334,16 @@ def read_xyz(path: str | Path) -> NDArray[np.float32]:
     lines = _content_lines(_read_text(path))
     if lines and lines[0][1].startswith("NODE"):
         raise DatasetError(f"{name}:{lines[0][0]}: a scan log with NODE lines; use read_scan_log")
-    return _parse_points(lines, name)
+    points = _parse_points(lines, name)
+    if len(points) == 0:
+        raise DatasetError(f"{name}: no points (an empty point file maps nothing)")
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.any():
+        raise DatasetError(f"{name}: all {len(points)} points are NaN or infinite")
+    if not finite.all():
+        log.warning("%s: %d of %d points are NaN or infinite; left out", name, int((~finite).sum()), len(points))
+        points = points[finite]
+    return points
 
 
 def read_scan_log(path: str | Path) -> list[ScanNode]:

@@ -12,11 +12,18 @@ Environment (explicit constructor arguments win):
 - ``ZENOH_CONFIG_OVERRIDE``: ``a/b=json5;c=json5`` pairs inserted on top (bad pairs are warned about and skipped);
 - ``ZENOH_ROUTER_CHECK_ATTEMPTS``: unset → wait up to 2 s for the router, ``<0`` → don't check, ``0`` → wait
   forever, ``n`` → wait up to n seconds (rmw checks n times 1 s apart);
-- ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off.
+- ``FLEETSLAM_STATISTICS``: ``0`` turns the per-subscription statistics off;
+- ``FLEETSLAM_SECURITY``: a keystore made by ``fleetslam security init`` (or one host's folder of it): the session
+  is then that host's mutual-TLS client of the router (see :mod:`fleetslam.security`); the host is
+  ``FLEETSLAM_IDENTITY``, else the agent of ``FLEETSLAM_AGENT``, else ``station``. ``FLEETSLAM_ROUTER`` still
+  overrides the router endpoint; listen endpoints do not apply (a client listens on nothing).
 
 The default session is rmw_zenoh's: peer mode connected to the router, multicast scouting off, gossip on,
 timestamping on, queries time out after 600 s (plus ``scouting/delay`` 0: open() does not idle 500 ms, the
-context waits for the router itself). Without a reachable router the context raises
+context waits for the router itself), and messages larger than :data:`MAX_MESSAGE_BYTES` refused by the
+transport while they arrive, before they are reassembled (``transport/link/rx/max_message_size``; with Zenoh's
+own default, 1 GiB, one peer made the router and every subscriber hold 300 MB for good; now a refused message
+costs at most the limit, which the transport keeps for reuse). Without a reachable router the context raises
 :class:`~fleetslam.errors.RouterUnreachableError` at once, saying how to start one.
 """
 
@@ -27,10 +34,12 @@ import json
 import logging
 import math
 import os
+import re
 import signal
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -48,12 +57,28 @@ log = logging.getLogger(__name__)
 DEFAULT_ROUTER = "tcp/localhost:7447"
 DEFAULT_LISTEN = "tcp/localhost:0"
 DEFAULT_ROUTER_TIMEOUT_S = 2.0
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+"""Largest message a default session or router accepts (a 640×480 RGB image is 0.9 MB, 1920×1080 6.2 MB, a room's
+octree a few MB). Raise it with ``ZENOH_CONFIG_OVERRIDE='transport/link/rx/max_message_size=<bytes>'`` on every host."""
+
+
+_ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/?#][^\s]*")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` if it is ``<protocol>/<address>`` with a Zenoh protocol; else ValueError saying so."""
+    if not _ENDPOINT.fullmatch(endpoint.strip()):
+        raise ValueError(f"{endpoint!r} is not a Zenoh endpoint (<protocol>/<address>, e.g. tcp/10.0.0.2:7447)")
+    return endpoint.strip()
 
 
 def split_endpoints(text: str | Sequence[str]) -> list[str]:
-    """``"tcp/a:1, tcp/b:2"`` (or a list) → ``["tcp/a:1", "tcp/b:2"]``."""
+    """``"tcp/a:1, tcp/b:2"`` (or a list) → ``["tcp/a:1", "tcp/b:2"]``; ConfigError for one that is not an endpoint."""
     items = text.split(",") if isinstance(text, str) else list(text)
-    return [item.strip() for item in items if item.strip()]
+    try:
+        return [check_endpoint(item) for item in items if item.strip()]
+    except ValueError as err:
+        raise ConfigError(f"endpoint {err}") from err
 
 
 def apply_config_overrides(config: zenoh.Config, overrides: str) -> list[str]:
@@ -96,8 +121,17 @@ def session_config(
     """
     environ = os.environ if environ is None else environ
     uri = environ.get("ZENOH_SESSION_CONFIG_URI", "").strip()
+    security = environ.get("FLEETSLAM_SECURITY", "").strip()
     if uri:
         config = load_config_file(uri, "ZENOH_SESSION_CONFIG_URI")
+    elif security:
+        from fleetslam.security.keystore import host_folder, load_zenoh_config
+
+        identity = environ.get("FLEETSLAM_IDENTITY", "").strip() or namespace_from_env(environ).strip("/") or "station"
+        config = load_zenoh_config(host_folder(Path(security), identity))
+        if listen:
+            log.warning("FLEETSLAM_SECURITY: a secured host is a client of the router; listen %s ignored", listen)
+        listen = None
     else:
         config = zenoh.Config()
         config.insert_json5("mode", '"peer"')
@@ -107,6 +141,7 @@ def session_config(
         config.insert_json5("scouting/delay", "0")
         config.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
         config.insert_json5("queries_default_timeout", "600000")
+        config.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
         connect = connect or []
         listen = listen or []
     if connect is not None:
@@ -172,7 +207,7 @@ class Context:
         environ: Mapping[str, str] | None = None,
     ) -> None:
         environ = dict(os.environ if environ is None else environ)
-        from_file = bool(environ.get("ZENOH_SESSION_CONFIG_URI", "").strip())
+        from_file = bool(environ.get("ZENOH_SESSION_CONFIG_URI", "").strip() or environ.get("FLEETSLAM_SECURITY"))
         if router is None and "FLEETSLAM_ROUTER" in environ:
             router = environ["FLEETSLAM_ROUTER"]
         if listen is None and "FLEETSLAM_LISTEN" in environ:

@@ -38,7 +38,7 @@ import zenoh
 from fleetslam.config import ConfigModel, load_config
 from fleetslam.errors import MessageError, MiddlewareError, ServiceError
 from fleetslam.middleware import typesys
-from fleetslam.middleware.context import Context
+from fleetslam.middleware.context import MAX_MESSAGE_BYTES, Context
 from fleetslam.middleware.lifetime import declare_with_callback, join_at_exit
 from fleetslam.middleware.names import (
     RosArgs,
@@ -63,7 +63,8 @@ from fleetslam.middleware.wire import (
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MAX_PAYLOAD_BYTES = 256 * 1024 * 1024
+DEFAULT_MAX_PAYLOAD_BYTES = MAX_MESSAGE_BYTES
+"""Larger samples are dropped (and cannot arrive through a default session anyway)."""
 STATISTICS_TOPIC = "/statistics"
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 
@@ -395,7 +396,10 @@ class Subscription(_Entity):
                 self.statistics.on_error(gid, size)
                 errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
                 return
-            self.publisher_types[gid] = type_name
+            types = self.publisher_types  # as bounded as the statistics: GIDs are forgeable
+            if gid not in types and len(types) >= self.statistics.max_publishers:
+                del types[next(iter(types))]
+            types[gid] = type_name
         self.statistics.on_sample(gid, seq, stamp, received, size)
         info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
         payload = zpayload.to_bytes()

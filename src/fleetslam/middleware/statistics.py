@@ -4,12 +4,19 @@ For every received sample the subscription records its size, the gap in the publ
 (dropped messages), the period since the publisher's previous sample, and the age (receive time minus the
 attachment's source timestamp). Each update is O(1): a dictionary lookup and a few float operations.
 Pure and thread-safe; no Zenoh here (the subscription feeds it, the node publishes its reports).
+
+Bounded: the publisher GID comes from the sample's attachment, which anyone can forge, so at most
+``max_publishers`` are tracked per subscription (the most recently heard). A new one evicts the least recently
+heard, whose unreported counts move to the "other publishers" entry (the all-zero GID, also used for samples
+whose attachment could not be read), so no count is lost and a window reports at most ``max_publishers + 1``
+publishers however many GIDs were forged.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 
@@ -46,6 +53,14 @@ class PublisherWindow:
     period: RunningStats = field(default_factory=RunningStats)
     age: RunningStats = field(default_factory=RunningStats)
 
+    def absorb(self, other: PublisherWindow) -> None:
+        """Add another window's counts (an evicted publisher's, into "other publishers"; periods and ages are not
+        comparable across publishers and stay its own)."""
+        self.delivered += other.delivered
+        self.dropped += other.dropped
+        self.errors += other.errors
+        self.traffic_bytes += other.traffic_bytes
+
 
 @dataclass(frozen=True)
 class WindowReport:
@@ -67,6 +82,8 @@ class WindowReport:
 
 
 _NO_GID = b"\x00" * 16
+"""Samples of no readable GID, and the publishers evicted from a full table ("other publishers")."""
+DEFAULT_MAX_PUBLISHERS = 32
 
 
 class _PublisherState:
@@ -81,26 +98,48 @@ class _PublisherState:
 
 
 class SubscriptionStatistics:
-    """Statistics of one subscription, per publisher GID, over windows closed by :meth:`close_window`."""
+    """Statistics of one subscription, per publisher GID (at most ``max_publishers``, see the module docstring),
+    over windows closed by :meth:`close_window`."""
 
-    def __init__(self, now_ns: int) -> None:
+    def __init__(self, now_ns: int, max_publishers: int = DEFAULT_MAX_PUBLISHERS) -> None:
+        if max_publishers < 1:
+            raise ValueError(f"max_publishers must be at least 1, got {max_publishers}")
+        self.max_publishers = max_publishers
         self._lock = threading.Lock()
         self._window_start = now_ns
-        self._publishers: dict[bytes, _PublisherState] = {}
+        self._publishers: OrderedDict[bytes, _PublisherState] = OrderedDict()
+        """Least recently heard first."""
+        self._others = _PublisherState()
         self.total_delivered = 0
         self.total_dropped = 0
         self.total_errors = 0
+        self.evicted = 0
+        """Publishers forgotten because the table was full."""
+
+    @property
+    def publishers(self) -> int:
+        """GIDs tracked now."""
+        with self._lock:
+            return len(self._publishers)
 
     def _state(self, gid: bytes) -> _PublisherState:
+        if gid == _NO_GID:
+            return self._others
         state = self._publishers.get(gid)
         if state is None:
+            if len(self._publishers) >= self.max_publishers:
+                _, oldest = self._publishers.popitem(last=False)
+                self._others.window.absorb(oldest.window)
+                self.evicted += 1
             state = self._publishers[gid] = _PublisherState()
+        else:
+            self._publishers.move_to_end(gid)
         return state
 
     def on_sample(self, gid: bytes, sequence_number: int, source_ns: int, receive_ns: int, size: int) -> None:
         """Record a delivered sample (a sequence number above the last + 1 counts the gap as dropped)."""
         with self._lock:
-            state = self._publishers.get(gid) or self._state(gid)
+            state = self._state(gid)
             window = state.window
             window.delivered += 1
             window.traffic_bytes += size
@@ -140,7 +179,7 @@ class SubscriptionStatistics:
         with self._lock:
             start, self._window_start = self._window_start, now_ns
             windows = []
-            for gid, state in self._publishers.items():
+            for gid, state in [*self._publishers.items(), (_NO_GID, self._others)]:
                 w = state.window
                 if w.delivered or w.errors or w.dropped:
                     windows.append((gid, w))

@@ -1,9 +1,12 @@
 """The base controller (pure): velocity commands → limited twist → wheel set-points → PID torques.
 
 Driven entirely by explicit ``now`` arguments (seconds) so it runs identically in simulated and wall time.
-Safety: a command older than ``cmd_vel_timeout`` on arrival is dropped; when no fresh command has come for
-that long the target becomes zero and the robot brakes within the deceleration limits; an engaged e-stop
-latches a zero set-point (wheels actively braked) until it is released.
+Safety: a command older than ``cmd_vel_timeout`` on arrival is dropped; every command holds only until its stamp
+plus ``cmd_vel_timeout``, and the robot is *stopped* by then, not starting to brake: the set-point never exceeds what
+the deceleration limit can bring to zero before that deadline (|v| ≤ max_deceleration · time left). So a lost link
+stops the robot within ``cmd_vel_timeout`` of the last command at any speed, and a command stream must arrive faster
+than ``cmd_vel_timeout`` minus the braking time to hold full speed (20 Hz commands, 1.5 m/s², 0.5 s and 50 Hz
+control: up to 0.61 m/s). An engaged e-stop latches a zero set-point (wheels actively braked) until it is released.
 """
 
 from __future__ import annotations
@@ -119,9 +122,30 @@ class BaseController:
         self._last_stamp = stamp
         return True
 
+    def source_lost(self) -> None:
+        """The commanding source is gone (its liveliness token was withdrawn, or its link cut): brake now, at the
+        deceleration limits, instead of waiting for the command's deadline."""
+        self._target = (0.0, 0.0)
+
     def timed_out(self, now: float) -> bool:
         """Whether the last accepted command is older than ``cmd_vel_timeout`` (or none came yet)."""
         return self._last_stamp is None or now - self._last_stamp > self.config.cmd_vel_timeout
+
+    def _braking_envelope(self, now: float) -> tuple[float, float]:
+        """The command, bounded so that the deceleration limits bring it to zero by the command's deadline."""
+        v, omega = self._target
+        # The set-point is zero two control periods early: the wheels follow it one or two steps behind.
+        deadline = self.config.cmd_vel_timeout - 2.0 / self.config.control_rate
+        left = 0.0 if self._last_stamp is None else max(self._last_stamp + deadline - now, 0.0)
+        for limits, value in ((self.config.linear, v), (self.config.angular, omega)):
+            if 0.0 < limits.max_deceleration < math.inf:
+                bound = limits.max_deceleration * left
+                value = min(max(value, -bound), bound)
+            if limits is self.config.linear:
+                v = value
+            else:
+                omega = value
+        return v, omega
 
     def reset_odometry(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Restart odometry at (x, y, θ)."""
@@ -138,7 +162,7 @@ class BaseController:
             self.angular_limiter.reset()
             v, omega = 0.0, 0.0
         else:
-            target_v, target_omega = (0.0, 0.0) if timed_out else self._target
+            target_v, target_omega = (0.0, 0.0) if timed_out else self._braking_envelope(now)
             v = self.linear_limiter.limit(target_v, dt)
             omega = self.angular_limiter.limit(target_omega, dt)
         setpoints = wheel_speeds(v, omega, wheel_radius=cfg.wheel_radius, wheel_separation=cfg.wheel_separation)

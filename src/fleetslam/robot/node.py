@@ -23,8 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware import MessageInfo, Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, header, ns_from_stamp
+from fleetslam.middleware.wire import EntityKind, LivelinessToken
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.controller import BaseController, ControllerOutput
 from fleetslam.robot.interfaces import WheelInterface
@@ -92,6 +93,12 @@ class BaseControllerNode:
         )
         self.last_external_command: float | None = None
         """Clock time of the last accepted `cmd_vel` (an operator or another node driving the robot)."""
+        self._commander: bytes | None = None
+        """GID of the publisher whose command is being followed."""
+        self.sources_lost = 0
+        """Times the commanding publisher's liveliness disappeared while it was driving, and the base braked."""
+        node.context.graph.add_listener(self._on_graph_change)
+        node.add_on_destroy(lambda: node.context.graph.remove_listener(self._on_graph_change))
         node.create_subscription("geometry_msgs/msg/Twist", "cmd_vel", self._on_twist, QoSProfile(depth=1))
         node.create_subscription(
             "geometry_msgs/msg/TwistStamped", "cmd_vel", self._on_twist_stamped, QoSProfile(depth=1)
@@ -100,19 +107,33 @@ class BaseControllerNode:
         self.timer = node.create_timer(1.0 / self.config.control_rate, self._on_timer) if run_timer else None
 
     # -- inputs ------------------------------------------------------------------------------------------------
-    def _on_twist(self, msg: Any) -> None:
+    def _on_twist(self, msg: Any, info: MessageInfo) -> None:
         now = self.clock()
         with self._lock:
             if self.controller.command(float(msg.linear.x), float(msg.angular.z), now, now):
                 self.last_external_command = now
+                self._commander = info.publisher_gid
 
-    def _on_twist_stamped(self, msg: Any) -> None:
+    def _on_twist_stamped(self, msg: Any, info: MessageInfo) -> None:
         now = self.clock()
         stamp_ns = ns_from_stamp(msg.header.stamp)
         stamp = now if stamp_ns == 0 else stamp_ns * 1e-9
         with self._lock:
             if self.controller.command(float(msg.twist.linear.x), float(msg.twist.angular.z), stamp, now):
                 self.last_external_command = now
+                self._commander = info.publisher_gid
+
+    def _on_graph_change(self, event: str, token: LivelinessToken) -> None:
+        """On a Zenoh thread: the publisher being followed left the graph (stopped, crashed, or its link was cut)."""
+        if event != "delete" or token.kind is not EntityKind.PUBLISHER:
+            return
+        with self._lock:
+            if self._commander is None or token.gid != self._commander:
+                return
+            self._commander = None
+            self.controller.source_lost()
+            self.sources_lost += 1
+        log.warning("%s: the publisher driving the base (%s) is gone; braking", self.node.fq_name, token.node_name)
 
     def _on_estop(self, request: Any) -> Any:
         engaged = bool(request.data)

@@ -26,7 +26,6 @@ import threading
 import time
 from collections.abc import Callable
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,10 +33,12 @@ from pydantic import Field
 
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
+from fleetslam.errors import UnsafePathError
 from fleetslam.geometry import invert, pose_to_quat
 from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.conversions import pose_matrix, transform_matrix, transform_msg
 from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp, stamp_from_ns
+from fleetslam.save_paths import save_path
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.frame_queue import FramePair, FrameQueue
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
@@ -64,8 +65,11 @@ class SlamNodeConfig(ConfigModel):
     odom_wait: float = Field(default=0.5, ge=0.0)
     """How long (s) a frame may wait for the wheel odometry to reach its stamp before it is processed without
     the newest wheel pose (odometry and images travel separately)."""
+    maps_dir: str = "maps"
+    """The only directory the save_map service writes to (created when needed; relative to the working
+    directory). Requests name a plain file inside it, never a path."""
     map_db: str = "map.db"
-    """Default file of the save_map service."""
+    """Default file name of the save_map service, inside ``maps_dir``."""
     use_wheel_odometry: bool = True
     """Subscribe ``odom`` and ``tf_static`` and give every frame the wheel pose at its stamp as prior."""
     odom_frame: str = "odom"
@@ -473,12 +477,15 @@ class SlamNode:
 
     def _save_map(self, request: Any) -> Any:
         response = get_type("fleetslam_msgs/srv/SaveMap_Response")
-        path = Path(request.path or self.config.map_db)
+        name = request.path or self.config.map_db
+        try:
+            path = save_path(self.config.maps_dir, name, suffixes=(".db",))
+        except (UnsafePathError, OSError) as err:
+            return response(success=False, message=str(err), path=name)
         if self.pipeline is None or self.pipeline.detector is None:
             return response(success=False, message="nothing to save yet (no camera frames)", path=str(path))
         from fleetslam.slam.database import MapDatabase
 
-        path.parent.mkdir(parents=True, exist_ok=True)
         if path.exists():
             path.unlink()
         with MapDatabase(path) as db:

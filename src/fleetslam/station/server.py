@@ -18,6 +18,7 @@ from typing import Any
 
 from fleetslam.errors import MissingExtraError
 from fleetslam.middleware import Context
+from fleetslam.station.access import ConsoleAccess
 from fleetslam.station.bridge import StationBridge
 from fleetslam.station.protocol import TeleopLimits
 
@@ -43,6 +44,8 @@ class StationServer:
         host, port: where to listen (port 0 picks a free one; see ``self.port`` after ``start``).
         limits: speed limits and command timeout for teleoperation.
         teleop_rate_hz: rate of the command stream to the robots.
+        access: the token and origins the WebSocket accepts (see :mod:`fleetslam.station.access`); default: a new
+            random token, the console's own origin only. ``url`` carries the token.
     """
 
     def __init__(
@@ -53,6 +56,7 @@ class StationServer:
         port: int = 8080,
         limits: TeleopLimits | None = None,
         teleop_rate_hz: float = 20.0,
+        access: ConsoleAccess | None = None,
     ) -> None:
         try:
             import aiohttp  # noqa: F401
@@ -61,6 +65,9 @@ class StationServer:
         self.host, self.port = host, port
         self.limits = limits or TeleopLimits()
         self.teleop_period = 1.0 / teleop_rate_hz
+        self.access = access or ConsoleAccess.create()
+        self.refused = 0
+        """WebSocket requests refused (no or wrong token, foreign origin)."""
         self._context = context
         self._clients: dict[int, _Client] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -88,7 +95,13 @@ class StationServer:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """The console's page, with the token the WebSocket asks for."""
+        return f"http://{self.host}:{self.port}/?token={self.access.token}"
+
+    @property
+    def ws_url(self) -> str:
+        """The WebSocket, with the token (for programs; the page builds it itself)."""
+        return f"ws://{self.host}:{self.port}/ws?token={self.access.token}"
 
     def stop(self) -> None:
         if self.bridge is not None:
@@ -146,6 +159,14 @@ class StationServer:
     async def _websocket(self, request: Any) -> Any:
         from aiohttp import WSMsgType, web
 
+        refusal = self.access.refusal(
+            token=request.query.get("token"), origin=request.headers.get("Origin"), host=request.host,
+            secure=request.secure,
+        )  # fmt: skip
+        if refusal is not None:
+            self.refused += 1
+            log.warning("console WebSocket from %s refused: %s", request.remote, refusal)
+            raise web.HTTPForbidden(text=refusal + "\n")
         socket = web.WebSocketResponse(heartbeat=5.0, max_msg_size=16 * 1024 * 1024)
         await socket.prepare(request)
         client = _Client(socket)

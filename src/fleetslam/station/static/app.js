@@ -366,7 +366,11 @@ for (const [id, out] of [["max-v", "max-v-out"], ["max-w", "max-w-out"]]) {
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
 function connect() {
-  const socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  // The console's token comes with the URL it printed; kept for reloads of this tab, passed on to the WebSocket.
+  const token = new URLSearchParams(location.search).get("token") || sessionStorage.getItem("fleetslam-token") || "";
+  sessionStorage.setItem("fleetslam-token", token);
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  const socket = new WebSocket(`${scheme}://${location.host}/ws?token=${encodeURIComponent(token)}`);
   state.socket = socket;
   socket.onmessage = (event) => {
     const msg = JSON.parse(event.data);
