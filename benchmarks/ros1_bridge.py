@@ -19,6 +19,7 @@ import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import xmlrpc.client
@@ -64,10 +65,11 @@ def main() -> None:
     args = parser.parse_args()
 
     master_port, router_port = _free_port(), _free_port()
+    ros_home = tempfile.TemporaryDirectory(prefix="fleetslam-ros1-bench-")  # roscore's logs, removed at exit
     master = f"http://127.0.0.1:{master_port}"
     router = f"tcp/127.0.0.1:{router_port}"
     env = {**os.environ, "ROS_MASTER_URI": master, "ROS_IP": "127.0.0.1", "FLEETSLAM_ROUTER": router,
-           "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0", "ROS_HOME": f"/tmp/fleetslam-ros1-bench-{os.getpid()}"}  # fmt: skip
+           "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0", "ROS_HOME": ros_home.name}  # fmt: skip
     procs: list[subprocess.Popen[Any]] = []
 
     def spawn(cmd: list[str], **kw: Any) -> subprocess.Popen[Any]:
@@ -123,6 +125,7 @@ def main() -> None:
                 except subprocess.TimeoutExpired:
                     os.killpg(proc.pid, signal.SIGKILL)
                     proc.wait()
+            ros_home.cleanup()
 
     ros1_rate = _last_float(r"average rate: ([\d.]+)", hz_out)
     ros1_delay_ms = _last_float(r"average delay: ([\d.]+)", delay_out)
