@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -25,6 +26,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
     ros1.add_argument("--name", default="fleetslam_bridge", help="node name on both sides")
     ros1.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)")
     ros1.set_defaults(func=run_ros1)
+
+    rviz = sub.add_parser("rviz-config", help="write an RViz 1 configuration showing the agents' maps, paths, poses")
+    rviz.add_argument("agents", nargs="+", help="agent names, e.g. c3po r2d2")
+    rviz.add_argument("--fixed-frame", default="map", help="RViz fixed frame (the fused map is in 'fleet')")
+    rviz.add_argument("-o", "--output", type=Path, default=None, help="file to write (default: standard output)")
+    rviz.set_defaults(func=run_rviz_config)
+
+
+def run_rviz_config(args: argparse.Namespace) -> int:
+    from fleetslam.ros1.rviz import rviz_config
+
+    text = rviz_config(args.agents, fixed_frame=args.fixed_frame)
+    if args.output is None:
+        print(text, end="")
+    else:
+        args.output.write_text(text, encoding="utf-8")
+        print(f"wrote {args.output}; open it with: rviz -d {args.output}")
+    return 0
 
 
 def run_ros1(args: argparse.Namespace) -> int:
