@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import struct
 import subprocess
+import xmlrpc.client
 
 import pytest
 
@@ -57,3 +59,23 @@ def test_registers_again_when_the_master_restarts(roscore: Master) -> None:
         roscore.restart()
         assert wait_until(lambda: node.registrations == 2, timeout_s=10)
         assert 'data: "again"' in _echo_once(roscore, "/after_restart")
+
+
+def test_malformed_xmlrpc_and_bogus_publisher_updates_are_survived(roscore: Master) -> None:
+    need_ros1("rostopic")
+    with Ros1Node("xmlrpc_target", master_uri=roscore.uri) as node:
+        pub = node.advertise("/steady", STRING, latch=True)
+        pub.publish(_string("steady"))
+        node.subscribe("/nobody", STRING, lambda data, publisher: None)
+        host, port = node.uri.removeprefix("http://").rstrip("/").split(":")
+        for body in (b"<methodCall><methodName>getPid", b"\x00\xff" * 100, b"<?xml version='1.0'?><nope/>"):
+            with socket.create_connection((host, int(port))) as sock:
+                sock.sendall(b"POST / HTTP/1.0\r\nContent-Length: %d\r\n\r\n" % len(body) + body)
+                answer = b"".join(iter(lambda: sock.recv(4096), b""))
+                assert answer.startswith(b"HTTP/1.0 200") and b"faultCode" in answer, answer[:200]
+        proxy = xmlrpc.client.ServerProxy(node.uri)
+        for bogus in (["ftp://nowhere/"], [f"http://127.0.0.1:{free_port()}/"], "not a list"):
+            assert proxy.publisherUpdate("/evil", "/nobody", bogus)[0] == 1
+        assert proxy.requestTopic("/evil", "/steady", [["UDPROS"]])[0] == 0
+        assert proxy.getPid("/evil")[1:] == ["", os.getpid()]
+        assert 'data: "steady"' in _echo_once(roscore, "/steady")

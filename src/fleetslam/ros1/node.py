@@ -55,8 +55,8 @@ class _TimeoutTransport(xmlrpc.client.Transport):
 
 def xmlrpc_call(uri: str, method: str, *args: Any, timeout_s: float = 5.0) -> Any:
     """One ROS XML-RPC call; returns the value of a ``[code, status, value]`` answer with code 1."""
-    proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout_s), allow_none=False)
     try:
+        proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout_s), allow_none=False)
         answer = getattr(proxy, method)(*args)
     except (OSError, http.client.HTTPException, xmlrpc.client.Error) as err:
         raise MasterUnreachableError(f"{method} at {uri} failed: {err}") from err
@@ -326,7 +326,11 @@ class Ros1Node:
             if topic in self.publishers:
                 raise MiddlewareError(f"ROS 1 topic {topic} is already advertised by {self.caller_id}")
             pub = self.publishers[topic] = Ros1Publisher(self, topic, msg_type, latch)
-        self._register_publisher(pub)
+        try:
+            self._register_publisher(pub)
+        except MiddlewareError:
+            del self.publishers[topic]  # the caller may try again once the master is back
+            raise
         return pub
 
     def subscribe(self, topic: str, msg_type: Ros1Type, callback: Callable[[bytes, str], None]) -> Ros1Subscription:
@@ -334,7 +338,11 @@ class Ros1Node:
             if topic in self.subscriptions:
                 raise MiddlewareError(f"ROS 1 topic {topic} is already subscribed by {self.caller_id}")
             sub = self.subscriptions[topic] = Ros1Subscription(self, topic, msg_type, callback)
-        self._register_subscriber(sub)
+        try:
+            self._register_subscriber(sub)
+        except MiddlewareError:
+            del self.subscriptions[topic]  # the caller may try again once the master is back
+            raise
         return sub
 
     def _register_publisher(self, pub: Ros1Publisher) -> None:
