@@ -137,3 +137,35 @@ def test_cli_names_an_unreachable_master(
     monkeypatch.setenv("ROS_MASTER_URI", uri)
     assert main(["bridge", "ros1", "--all", "--duration", "1"]) != 0
     assert f"ROS master at {uri} is unreachable" in capsys.readouterr().err
+
+
+def test_ros1_odometry_in_and_fleet_cmd_vel_out(
+    roscore: Master, bridge: Ros1Bridge, make_context: Callable[..., Context]
+) -> None:
+    """A ROS 1 robot's wheel odometry reaches fleetslam; fleetslam's cmd_vel reaches the ROS 1 base."""
+    poses: list[tuple[float, float, str]] = []
+    odom = subprocess.Popen(
+        ["rostopic", "pub", "-r", "5", "/ros1/odom", "nav_msgs/Odometry",
+         "{header: {frame_id: odom}, child_frame_id: base_link, pose: {pose: {position: {x: 1.5, y: -2.0}, "
+         "orientation: {w: 1.0}}}}"],
+        env=roscore.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    with Node("base", context=make_context(), namespace="/c3po") as base:
+        base.create_subscription(
+            "nav_msgs/msg/Odometry", "/ros1/odom",
+            lambda m: poses.append((m.pose.pose.position.x, m.pose.pose.position.y, m.child_frame_id)),
+        )  # fmt: skip
+        cmd_vel = base.create_publisher("geometry_msgs/msg/Twist", "cmd_vel")
+        twist = message_from_dict("geometry_msgs/msg/Twist", {"linear": {"x": 0.3}, "angular": {"z": 0.7}})
+        base.create_timer(0.1, lambda: cmd_vel.publish(twist))
+        try:
+            assert wait_until(lambda: len(poses) >= 2, timeout_s=20)
+            assert wait_until(lambda: "/c3po/cmd_vel" in bridge.bridged_to_ros1, timeout_s=10)
+            echoed = _tool(roscore, "rostopic", "echo", "-n", "1", "/c3po/cmd_vel")
+        finally:
+            odom.terminate()
+            odom.wait(timeout=10)
+    assert poses[-1] == (1.5, -2.0, "base_link")
+    assert re.search(r"linear:\s+x: 0\.3", echoed) and re.search(r"angular:\s+x: 0\.0\s+y: 0\.0\s+z: 0\.7", echoed), (
+        echoed
+    )
