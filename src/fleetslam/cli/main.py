@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stats": ("fleetslam.cli.stats", "live network statistics per agent and topic"),
     "record": ("fleetslam.cli.record", "record topics to a rosbag2 folder with MCAP storage"),
     "play": ("fleetslam.cli.play", "replay a recording with its original timing"),
+    "convert": ("fleetslam.cli.convert", "convert a recording to a ROS 1 bag"),
+    "bridge": ("fleetslam.cli.bridge", "bridge the fleet to other middleware (ROS 1)"),
     "sim": ("fleetslam.cli.sim", "run the simulated plant, export datasets"),
     "robot": ("fleetslam.cli.robot", "run a robot's base controller"),
     "teleop": ("fleetslam.cli.teleop", "drive a robot with the keyboard or a joystick"),

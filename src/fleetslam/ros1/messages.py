@@ -1,0 +1,125 @@
+"""ROS 1 message types: rosbags' Noetic typestore plus what it lacks (tf2_msgs, our fleetslam_msgs), md5sums,
+definitions and the conversion between ROS 2 CDR and ROS 1 bytes.
+
+Names: ROS 1 calls a type ``pkg/Name``; the fleet (ROS 2) calls it ``pkg/msg/Name``. Conversion goes through
+a field-by-field copy between the two stores' dataclasses: same-named fields are copied (numeric arrays
+shared, not copied), fields on one side only are zeroed or dropped (Header.seq, Marker's ROS 2 additions).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+from rosbags.interfaces import Nodetype
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from fleetslam.errors import MessageError
+from fleetslam.middleware import typesys
+
+TF_MESSAGE = "geometry_msgs/TransformStamped[] transforms\n"
+
+_lock = threading.Lock()
+_store: Typestore | None = None
+
+
+@dataclass(frozen=True)
+class Ros1Type:
+    """What a TCPROS header needs to name a type."""
+
+    ros1_name: str
+    md5sum: str
+    definition: str
+
+
+def ros1_name(ros2_name: str) -> str:
+    """``pkg/msg/Name`` -> ``pkg/Name``."""
+    pkg, _, name = ros2_name.rpartition("/")
+    return f"{pkg.split('/')[0]}/{name}"
+
+
+def ros2_name(name: str) -> str:
+    """``pkg/Name`` (or already ``pkg/msg/Name``) -> ``pkg/msg/Name``."""
+    parts = name.split("/")
+    if len(parts) == 3:
+        return name
+    if len(parts) != 2 or not all(parts):
+        raise MessageError(f"not a ROS 1 message type name: {name!r} (expected pkg/Name)")
+    return f"{parts[0]}/msg/{parts[1]}"
+
+
+def ros1_typestore() -> Typestore:
+    """The shared Noetic typestore with tf2_msgs/TFMessage and fleetslam_msgs registered."""
+    global _store
+    with _lock:
+        if _store is None:
+            store = get_typestore(Stores.ROS1_NOETIC)
+            types = get_types_from_msg(TF_MESSAGE, "tf2_msgs/msg/TFMessage")
+            for entry in resources.files("fleetslam.msg").iterdir():
+                if entry.name.endswith(".msg"):
+                    types.update(
+                        get_types_from_msg(entry.read_text(encoding="utf-8"), f"fleetslam_msgs/msg/{entry.name[:-4]}")
+                    )
+            store.register(types)
+            _store = store
+        return _store
+
+
+def type_info(name: str) -> Ros1Type:
+    """md5sum and full definition of a type (either naming), as ``rosmsg md5``/``gendeps --cat`` give them."""
+    full = ros2_name(name)
+    store = ros1_typestore()
+    if full not in store.fielddefs:
+        raise MessageError(f"type {full} is not known on the ROS 1 side")
+    definition, md5sum = store.generate_msgdef(full, ros_version=1)
+    return Ros1Type(ros1_name(full), md5sum, definition)
+
+
+def _convert_value(value: Any, desc: Any, store: Typestore) -> Any:
+    kind = desc[0]
+    if kind == Nodetype.NAME:
+        return _convert_struct(value, desc[1], store)
+    if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and desc[1][0][0] == Nodetype.NAME:
+        return [_convert_struct(item, desc[1][0][1], store) for item in value]
+    return value  # base values and numeric arrays (numpy) are shared as they are
+
+
+def _convert_struct(msg: Any, type_name: str, store: Typestore) -> Any:
+    """``msg`` (from the other store, or None) as ``type_name`` of ``store``: same-named fields are copied,
+    fields that exist on one side only (Header.seq, ROS 2 additions) are dropped or zeroed."""
+    members = store.fielddefs[type_name][1]
+    kwargs = {
+        name: _convert_value(getattr(msg, name), desc, store)
+        if msg is not None and hasattr(msg, name)
+        else typesys._default_for(desc, store)  # the zero value ROS gives a missing field
+        for name, desc in members
+    }
+    return store.types[type_name](**kwargs)
+
+
+def cdr_to_ros1(cdr: bytes | memoryview, name: str) -> bytes:
+    """ROS 2 CDR (with its encapsulation header) -> ROS 1 bytes."""
+    full = ros2_name(name)
+    store = ros1_typestore()
+    try:
+        msg = _convert_struct(typesys.deserialize(cdr, full), full, store)
+        return bytes(store.serialize_ros1(msg, full))
+    except MessageError:
+        raise
+    except Exception as err:  # rosbags raises assorted errors on values that do not fit the type
+        raise MessageError(f"cannot convert a {full} from CDR to ROS 1: {err}") from err
+
+
+def ros1_to_cdr(raw: bytes | memoryview, name: str) -> bytes:
+    """ROS 1 bytes -> ROS 2 CDR (little-endian, with its encapsulation header)."""
+    full = ros2_name(name)
+    try:
+        msg = ros1_typestore().deserialize_ros1(bytes(raw), full)
+        return typesys.serialize(_convert_struct(msg, full, typesys.get_typestore()), full)
+    except MessageError:
+        raise
+    except Exception as err:  # rosbags raises assorted errors on bytes that do not fit the type
+        raise MessageError(f"cannot convert a {full} from ROS 1 to CDR: {err}") from err

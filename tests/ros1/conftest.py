@@ -1,0 +1,87 @@
+"""A real ROS 1 master (Debian's roscore) on a free loopback port, and the environment its tools need.
+
+Tests here skip, naming the packages, when ROS 1 is not installed (``scripts/setup`` installs it as root).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+import xmlrpc.client
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from ..support import free_port
+
+ROS1_PACKAGES = "python3-rosmaster python3-rostopic python3-rosbag python3-std-msgs python3-sensor-msgs"
+
+
+def need_ros1(*tools: str) -> None:
+    missing = [t for t in ("roscore", *tools) if shutil.which(t) is None]
+    if missing:
+        pytest.skip(f"ROS 1 tools {missing} not installed (apt-get install {ROS1_PACKAGES}, or scripts/setup as root)")
+
+
+@dataclass
+class Master:
+    """A running roscore; ``restart()`` kills it and starts a fresh one on the same port."""
+
+    port: int
+    home: Path
+    process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def uri(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def env(self) -> dict[str, str]:
+        return {**os.environ, "ROS_MASTER_URI": self.uri, "ROS_IP": "127.0.0.1", "ROS_HOME": str(self.home)}
+
+    def start(self) -> None:
+        log = (self.home / "roscore.log").open("ab")
+        self.process = subprocess.Popen(
+            ["roscore", "-p", str(self.port)],
+            env=self.env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                xmlrpc.client.ServerProxy(self.uri).getPid("/test")
+                return
+            except OSError:
+                time.sleep(0.2)
+        raise RuntimeError(f"roscore did not come up on {self.uri}; see {self.home / 'roscore.log'}")
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGINT)
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+        self.process = None
+
+    def restart(self) -> None:
+        self.stop()
+        self.start()
+
+
+@pytest.fixture
+def roscore(tmp_path: Path) -> Iterator[Master]:
+    need_ros1()
+    master = Master(free_port(), tmp_path / "ros_home")
+    master.home.mkdir()
+    master.start()
+    yield master
+    master.stop()
