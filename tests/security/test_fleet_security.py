@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import stat
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,9 +17,11 @@ import zenoh
 from fleetslam.errors import ConfigError, RouterUnreachableError, ServiceError
 from fleetslam.middleware import Context, Node, QoSProfile, Router
 from fleetslam.middleware.context import MAX_MESSAGE_BYTES
-from fleetslam.middleware.typesys import get_type, message_from_dict
+from fleetslam.middleware.typesys import get_type, message_from_dict, serialize
+from fleetslam.middleware.wire import encode_attachment
 from fleetslam.security.keystore import init_keystore
 
+from ..middleware.test_wire import STRING_HASH
 from ..support import free_port, wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="the openssl command makes the certificates")
@@ -117,3 +120,54 @@ def test_agents_stay_in_their_namespace_and_the_station_drives_everyone(secured_
     finally:
         for ctx in contexts:
             ctx.close()
+
+
+def test_a_ros2_peer_with_the_same_files_interoperates(secured_router: tuple[Path, int]) -> None:
+    """rmw_zenoh opens its session from a host's ``zenoh.json5`` as it is (``ZENOH_SESSION_CONFIG_URI``). ROS 2 is not
+    installable here, so a plain Zenoh session opened from that file stands in for it, speaking rmw_zenoh's keys,
+    liveliness tokens and attachments (checked byte for byte in tests/middleware): it joins the secured router with
+    c3po's certificate, fleetslam sees it in the graph and hears it, it hears the station, and the access control
+    holds for it as for fleetslam's own nodes."""
+    directory, _ = secured_router
+    ros2 = zenoh.open(zenoh.Config.from_file(str(directory / "c3po" / "zenoh.json5")))
+    station_context = _host(directory, "station")
+    token: zenoh.LivelinessToken | None = None
+    try:
+        station = Node("viewer", context=station_context)
+        heard: dict[str, list[str]] = {"/c3po/chatter": [], "/r2d2/chatter": []}
+        for topic, messages in heard.items():
+            station.create_subscription("std_msgs/msg/String", topic, lambda m, out=messages: out.append(m.data))
+        zid = str(ros2.zid())
+        token = ros2.liveliness().declare_token(
+            f"@ros2_lv/0/{zid}/0/1/MP/%/%/ros2_talker/%c3po%chatter/std_msgs::msg::dds_::String_/{STRING_HASH}/"
+            "::,7:,:,:,,"
+        )
+
+        def talkers() -> list[str]:  # what `ros2 topic info -v` lists
+            return [p.node_fq_name for p in station.context.graph.publishers_info("/c3po/chatter")]
+
+        assert wait_until(lambda: talkers() == ["/ros2_talker"], 10.0), talkers()
+        to_ros2: list[bytes] = []
+        ros2.declare_subscriber(f"0/c3po/note/std_msgs::msg::dds_::String_/{STRING_HASH}",
+                                lambda s: to_ros2.append(s.payload.to_bytes()))  # fmt: skip
+        note = station.create_publisher("std_msgs/msg/String", "/c3po/note")
+        gid = bytes(range(16))
+        for seq in range(1, 51):
+            for ns in ("c3po", "r2d2"):  # its own namespace, and one it may not publish in
+                ros2.put(f"0/{ns}/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}",
+                         serialize(get_type("std_msgs/msg/String")(data=f"ros2 {seq}"), "std_msgs/msg/String"),
+                         attachment=encode_attachment(seq, time.time_ns(), gid))  # fmt: skip
+            note.publish(get_type("std_msgs/msg/String")(data="from the station"))
+            if heard["/c3po/chatter"] and to_ros2:
+                break
+            time.sleep(0.1)
+        assert wait_until(lambda: bool(heard["/c3po/chatter"]) and bool(to_ros2), 5.0), (heard, len(to_ros2))
+        assert heard["/c3po/chatter"][0].startswith("ros2 ")
+        assert to_ros2[0] == serialize(get_type("std_msgs/msg/String")(data="from the station"), "std_msgs/msg/String")
+        time.sleep(0.5)
+        assert heard["/r2d2/chatter"] == []  # c3po's certificate does not publish in r2d2's namespace
+    finally:
+        station_context.close()
+        if token is not None:
+            token.undeclare()
+        ros2.close()
