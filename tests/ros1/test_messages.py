@@ -68,6 +68,58 @@ def test_image_converts_both_ways_byte_exactly() -> None:
     assert messages.ros1_to_cdr(raw, "sensor_msgs/Image") == cdr
 
 
+_GENPY_CAMERA_INFO = """
+import sys
+from sensor_msgs.msg import CameraInfo
+info = CameraInfo()
+info.deserialize(sys.stdin.buffer.read())
+print(info.width, info.height, info.distortion_model, list(info.D), list(info.K), list(info.R), list(info.P),
+      info.binning_x, info.roi.width)
+"""
+
+
+def test_camera_info_keeps_its_calibration_both_ways() -> None:
+    """ROS 2 spells CameraInfo's D, K, R, P in lower case: a copy by exact name zeroed them both ways (a ROS 1
+    Kinect driver's camera_info reached SLAM with K all zeros), so they are matched up to case."""
+    k = [525.0, 0.0, 319.5, 0.0, 525.0, 239.5, 0.0, 0.0, 1.0]
+    r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    p = [525.0, 0.0, 319.5, 0.0, 0.0, 525.0, 239.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    d = [0.1, -0.2, 0.001, 0.002, 0.0]
+    info = typesys.message_from_dict(
+        "sensor_msgs/msg/CameraInfo",
+        {"header": {"frame_id": "camera_rgb_optical_frame"}, "width": 640, "height": 480,
+         "distortion_model": "plumb_bob", "d": d, "k": k, "r": r, "p": p, "binning_x": 2, "roi": {"width": 320}},
+    )  # fmt: skip
+    cdr = typesys.serialize(info, "sensor_msgs/msg/CameraInfo")
+    raw = messages.cdr_to_ros1(cdr, "sensor_msgs/msg/CameraInfo")
+    ros1 = messages.ros1_typestore().deserialize_ros1(raw, "sensor_msgs/msg/CameraInfo")
+    assert (list(ros1.K), list(ros1.D), list(ros1.R), list(ros1.P)) == (k, d, r, p)
+    assert messages.ros1_to_cdr(raw, "sensor_msgs/CameraInfo") == cdr
+    python = shutil.which("python3", path="/usr/bin")
+    if python is None:
+        pytest.skip("Debian's /usr/bin/python3 not found")
+    done = subprocess.run([python, "-c", _GENPY_CAMERA_INFO], input=raw, capture_output=True, timeout=60)
+    if done.returncode != 0:
+        pytest.skip(f"Debian's sensor_msgs not importable: {done.stderr.decode()[-200:]}")
+    assert done.stdout.decode().split("\n")[0] == f"640 480 plumb_bob {d} {k} {r} {p} 2 320"
+
+
+def test_no_field_is_renamed_between_ros1_and_ros2_beyond_case() -> None:
+    """The conversion copies fields by name up to case: every other field of every type both stores know must be one
+    that one side lacks (Header.seq, ROS 2 additions), or it would be silently zeroed."""
+    ros1, ros2 = messages.ros1_typestore(), typesys.get_typestore()
+    one_sided = {
+        "std_msgs/msg/Header": {"seq"},
+        "sensor_msgs/msg/Range": {"variance"},
+        "shape_msgs/msg/SolidPrimitive": {"polygon"},
+        "visualization_msgs/msg/Marker": {"texture_resource", "texture", "uv_coordinates", "mesh_file"},
+    }
+    for name in sorted(set(ros1.fielddefs) & set(ros2.fielddefs)):
+        names1 = {n.lower() for n, _ in ros1.fielddefs[name][1]}
+        names2 = {n.lower() for n, _ in ros2.fielddefs[name][1]}
+        assert names1 ^ names2 <= one_sided.get(name, set()), (name, names1 ^ names2)
+
+
 def test_marker_fields_added_in_ros2_are_dropped_and_zeroed() -> None:
     array = typesys.message_from_dict(
         "visualization_msgs/msg/MarkerArray",

@@ -3,7 +3,8 @@ definitions and the conversion between ROS 2 CDR and ROS 1 bytes.
 
 Names: ROS 1 calls a type ``pkg/Name``; the fleet (ROS 2) calls it ``pkg/msg/Name``. Conversion goes through
 a field-by-field copy between the two stores' dataclasses: same-named fields are copied (numeric arrays
-shared, not copied), fields on one side only are zeroed or dropped (Header.seq, Marker's ROS 2 additions).
+shared, not copied; names that differ only in case, as CameraInfo's ``K``/``k``, are the same field), fields on
+one side only are zeroed or dropped (Header.seq, Marker's ROS 2 additions).
 """
 
 from __future__ import annotations
@@ -87,16 +88,28 @@ def _convert_value(value: Any, desc: Any, store: Typestore) -> Any:
     return value  # base values and numeric arrays (numpy) are shared as they are
 
 
+def _source_field(msg: Any, name: str) -> str | None:
+    """The field of ``msg`` that fills ``name``: the same name, or the same letters in the other case (ROS 2
+    lower-cased CameraInfo's ``D``, ``K``, ``R``, ``P`` and DisparityImage's ``T``); None when there is none."""
+    if msg is None:
+        return None
+    for candidate in (name, name.upper(), name.lower()):
+        if hasattr(msg, candidate):
+            return candidate
+    return None
+
+
 def _convert_struct(msg: Any, type_name: str, store: Typestore) -> Any:
-    """``msg`` (from the other store, or None) as ``type_name`` of ``store``: same-named fields are copied,
-    fields that exist on one side only (Header.seq, ROS 2 additions) are dropped or zeroed."""
-    members = store.fielddefs[type_name][1]
-    kwargs = {
-        name: _convert_value(getattr(msg, name), desc, store)
-        if msg is not None and hasattr(msg, name)
-        else typesys._default_for(desc, store)  # the zero value ROS gives a missing field
-        for name, desc in members
-    }
+    """``msg`` (from the other store, or None) as ``type_name`` of ``store``: fields of the same name (up to case)
+    are copied, fields that exist on one side only (Header.seq, ROS 2 additions) are dropped or zeroed."""
+    kwargs = {}
+    for name, desc in store.fielddefs[type_name][1]:
+        source = _source_field(msg, name)
+        kwargs[name] = (
+            _convert_value(getattr(msg, source), desc, store)
+            if source is not None
+            else typesys._default_for(desc, store)  # the zero value ROS gives a missing field
+        )
     return store.types[type_name](**kwargs)
 
 
