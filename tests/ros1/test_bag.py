@@ -15,7 +15,7 @@ from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.typesys import message_from_dict, serialize
 from fleetslam.ros1.bag import convert_to_rosbag1
 
-from .conftest import need_ros1
+from .conftest import Master, need_ros1
 
 _READ = """
 import rosbag, sys
@@ -62,6 +62,23 @@ def test_converted_bag_is_read_by_rosbag(tmp_path: Path, capsys: pytest.CaptureF
     lines = read.stdout.splitlines()
     assert [x for x in lines if x.startswith("chatter")] == [f"chatter hello {i}" for i in range(10)]
     assert f"image 5 4 rgb8 camera_rgb_optical_frame {checksum}" in lines
+
+
+def test_rosbag_play_replays_a_converted_bag(tmp_path: Path, roscore: Master) -> None:
+    need_ros1("rosbag", "rostopic")
+    _recording(tmp_path / "run")
+    assert main(["convert", str(tmp_path / "run"), str(tmp_path / "run.bag")]) == 0
+    echo = subprocess.Popen(["rostopic", "echo", "-n", "3", "/c3po/chatter"], env=roscore.env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        play = subprocess.run(["rosbag", "play", "--wait-for-subscribers", "--topics", "/c3po/chatter", "--",
+                               str(tmp_path / "run.bag")], env=roscore.env, capture_output=True, text=True,
+                              timeout=60)  # fmt: skip
+        out, _ = echo.communicate(timeout=30)
+    finally:
+        echo.kill()
+    assert play.returncode == 0, play.stderr
+    assert re.findall(r'data: "(hello \d)"', out) == ["hello 0", "hello 1", "hello 2"], out
 
 
 def test_existing_output_is_refused(tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ from fleetslam.cli.main import main
 from fleetslam.ros1.rviz import rviz_config
 
 
-def test_each_agent_gets_its_maps_path_pose_and_camera(tmp_path: Path) -> None:
+def test_each_agent_gets_its_maps_path_keyframes_pose_and_camera(tmp_path: Path) -> None:
     out = tmp_path / "fleet.rviz"
     assert main(["bridge", "rviz-config", "c3po", "r2d2", "--fixed-frame", "fleet", "-o", str(out)]) == 0
     document = yaml.safe_load(out.read_text(encoding="utf-8"))
@@ -23,3 +23,5 @@ def test_each_agent_gets_its_maps_path_pose_and_camera(tmp_path: Path) -> None:
             assert f"/{agent}/{topic}" in topics
     colours = {d["Color"] for d in manager["Displays"] if d["Name"] in ("c3po map", "r2d2 map")}
     assert len(colours) == 2
+    (keyframes,) = [d for d in manager["Displays"] if d.get("Topic") == "/c3po/path"]
+    assert keyframes["Class"] == "rviz/Path" and keyframes["Pose Style"] == "Axes"  # a set of axes per keyframe

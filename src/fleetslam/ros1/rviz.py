@@ -1,7 +1,8 @@
 """RViz 1 display configurations for a fleet (pure: agents in, the `.rviz` YAML document out).
 
 Per agent: its map as a box cloud (``map/occupied``) and as cube-list markers (``map/markers``), its SLAM path
-and pose, its camera image, and tf; plus the fused fleet map. Each agent gets its own colour.
+with a set of axes on every keyframe (``path`` is the keyframes' poses), its pose, its camera image, and tf; plus
+the fused fleet map. Each agent gets its own colour.
 """
 
 from __future__ import annotations
@@ -28,12 +29,17 @@ def _boxes(colour: str | None) -> dict[str, Any]:
     return {"Style": "Boxes", "Size (m)": 0.05, "Queue Size": 2, **colouring}
 
 
+def _keyframe_axes(colour: str) -> dict[str, Any]:
+    """SLAM's ``path`` is its keyframes' poses: the line joins them and each is drawn as a set of axes."""
+    return {"Color": colour, "Line Style": "Lines", "Pose Style": "Axes", "Length": 0.2, "Radius": 0.02}
+
+
 def agent_displays(agent: str, colour: str) -> list[dict[str, Any]]:
     ns = f"/{agent.strip('/')}"
     return [
         _display("PointCloud2", f"{agent} map", f"{ns}/map/occupied", _boxes(colour)),
         _display("MarkerArray", f"{agent} map cubes", f"{ns}/map/markers", {"Queue Size": 2}),
-        _display("Path", f"{agent} path", f"{ns}/path", {"Color": colour, "Line Style": "Lines"}),
+        _display("Path", f"{agent} path and keyframes", f"{ns}/path", _keyframe_axes(colour)),
         _display("Odometry", f"{agent} pose", f"{ns}/slam/odom", {"Keep": 1, "Shape": {"Value": "Axes"}}),
         _display("Image", f"{agent} camera", f"{ns}/camera/rgb/image_raw", {"Transport Hint": "raw", "Queue Size": 2}),
     ]
