@@ -46,15 +46,17 @@ def test_quantize_without_adding_marks_unknown_descriptors() -> None:
     assert len(vocabulary) == 100
 
 
-@pytest.mark.parametrize("use_opencv", [False, True])
-def test_binary_nearest_neighbours_match_brute_force(use_opencv: bool) -> None:
-    if use_opencv:
-        pytest.importorskip("cv2")
+@pytest.mark.parametrize("search", ["numpy", "opencv", "numba"])
+def test_binary_nearest_neighbours_match_brute_force(search: str) -> None:
+    if search != "numpy":
+        pytest.importorskip({"opencv": "cv2"}.get(search, search))
     rng = np.random.default_rng(3)
     words = random_descriptors(rng, 700)
-    queries = np.vstack([flip_bits(rng, words[:100], 20), random_descriptors(rng, 100)])
-    vocabulary = VisualVocabulary(use_opencv=use_opencv)
-    assert vocabulary.use_opencv == use_opencv
+    # Ties included: a query equal to two words (the lower id must win) and one word duplicated.
+    words[650] = words[651]
+    queries = np.vstack([flip_bits(rng, words[:100], 20), random_descriptors(rng, 100), words[650:651]])
+    vocabulary = VisualVocabulary(search=search)  # type: ignore[arg-type]
+    assert vocabulary.search == search
     vocabulary.add_words(words[:300])
     vocabulary.nearest2(queries)  # builds the index; the next words are appended to it
     vocabulary.add_words(words[300:])
@@ -65,6 +67,7 @@ def test_binary_nearest_neighbours_match_brute_force(use_opencv: bool) -> None:
     np.testing.assert_array_equal(d2, sorted_dist[:, 1])
     np.testing.assert_array_equal(expected[np.arange(len(queries)), nearest], sorted_dist[:, 0])
     np.testing.assert_array_equal(nearest[:100], np.arange(100))
+    assert nearest[-1] == 650 and d1[-1] == 0 and d2[-1] == 0
     np.testing.assert_array_equal(hamming_distances(pack_binary(queries), pack_binary(words)), expected)
 
 

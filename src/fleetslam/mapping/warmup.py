@@ -1,5 +1,6 @@
-"""Compile the octree engine's numba kernels (and the fleet map's) into their on-disk cache, so that the first
-scan of a mapping node does not wait for the compiler (about 20 s on two cores). ``scripts/setup`` runs it:
+"""Compile the octree engine's numba kernels (and the fleet map's, and the SLAM vocabulary's) into their on-disk
+cache, so that the first scan of a mapping node or keyframe of a SLAM node does not wait for the compiler (about
+20 s on two cores). ``scripts/setup`` runs it:
 
     python -m fleetslam.mapping.warmup
 """
@@ -37,6 +38,10 @@ def compile_kernels() -> float:
     fleet = FleetMap(0.05)  # the fleet map node's kernels
     fleet.set_transform("b", pose_from_planar(1.0, 2.0, 0.3))
     fleet.update_agent("b", tree)
+    from fleetslam.slam._hamming_kernels import nearest2_packed  # the SLAM vocabulary's search
+
+    lanes = rng.integers(0, 2**63, size=(4, 4), dtype=np.uint64)
+    nearest2_packed(lanes, lanes)
     return time.perf_counter() - start
 
 
