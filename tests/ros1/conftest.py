@@ -19,7 +19,10 @@ import pytest
 
 from ..support import free_port
 
-ROS1_PACKAGES = "python3-rosmaster python3-rostopic python3-rosbag python3-std-msgs python3-sensor-msgs"
+ROS1_PACKAGES = (
+    "python3-rosmaster python3-rostopic python3-rosservice python3-rosbag python3-std-msgs python3-std-srvs"
+    " python3-sensor-msgs"
+)
 
 
 def need_ros1(*tools: str) -> None:

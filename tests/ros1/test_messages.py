@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
+import struct
 import subprocess
+from importlib import resources
 
 import numpy as np
 import pytest
@@ -142,3 +144,54 @@ def test_bad_bytes_and_names_raise_clear_errors() -> None:
         messages.ros2_name("Image")
     with pytest.raises(MessageError, match="not known on the ROS 1 side"):
         messages.type_info("nosuch_msgs/Thing")
+
+
+_GENMSG_SERVICES = """
+import json, os, sys, tempfile
+import genmsg, genmsg.gentools, genmsg.msg_loader
+import std_srvs.srv
+from geometry_msgs.msg import Point
+out = {name: getattr(std_srvs.srv, name)._md5sum for name in ("Empty", "SetBool", "Trigger")}
+folder = tempfile.mkdtemp()
+os.makedirs(os.path.join(folder, "geometry_msgs"))
+with open(os.path.join(folder, "geometry_msgs", "Point.msg"), "w") as file:
+    file.write(Point._full_text)
+for name, text in json.loads(sys.argv[1]).items():
+    context = genmsg.MsgContext.create_default()
+    spec = genmsg.msg_loader.load_srv_from_string(context, text, "fleetslam_msgs/" + name)
+    genmsg.msg_loader.load_depends(context, spec, {"geometry_msgs": [os.path.join(folder, "geometry_msgs")]})
+    out[name] = genmsg.gentools.compute_md5(context, spec)
+print(json.dumps(out))
+"""
+
+
+def test_service_md5sums_match_debians_genmsg() -> None:
+    """std_srvs from Debian's python3-std-srvs; our own .srv files through Debian's genmsg, as catkin would."""
+    python = shutil.which("python3", path="/usr/bin")
+    if python is None:
+        pytest.skip("Debian's /usr/bin/python3 not found")
+    own = {name: (resources.files("fleetslam.msg") / f"{name}.srv").read_text() for name in ("SaveMap", "ClearBbx")}
+    done = subprocess.run([python, "-c", _GENMSG_SERVICES, json.dumps(own)], capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        pytest.skip(f"Debian's std_srvs or genmsg not importable (python3-std-srvs): {done.stderr.strip()[-200:]}")
+    reference = json.loads(done.stdout)
+    for name, md5sum in reference.items():
+        package = "std_srvs" if name in ("Empty", "SetBool", "Trigger") else "fleetslam_msgs"
+        info = messages.service_info(f"{package}/{name}")
+        assert info.md5sum == md5sum, name
+        assert (info.ros1_name, info.request.ros1_name) == (f"{package}/{name}", f"{package}/{name}Request")
+
+
+def test_service_requests_and_responses_convert_both_ways() -> None:
+    clear = messages.service_info("fleetslam_msgs/srv/ClearBbx")
+    request = typesys.message_from_dict(clear.request_name, {"min": {"x": -1.0, "y": -2.0}, "max": {"z": 3.5}})
+    raw = messages.message_to_ros1(request, clear.request_name)
+    assert raw == struct.pack("<6d", -1.0, -2.0, 0.0, 0.0, 0.0, 3.5)  # ROS 1: the six doubles, nothing else
+    back = messages.ros1_to_message(raw, clear.request_name)
+    assert (back.min.y, back.max.z) == (-2.0, 3.5)
+    trigger = messages.service_info("std_srvs/Trigger")
+    assert messages.message_to_ros1(messages.ros1_to_message(b"", trigger.request_name), trigger.request_name) == b""
+    with pytest.raises(MessageError, match="not one that ROS 1 and the fleet both define"):
+        messages.service_info("example_interfaces/srv/AddTwoInts")
+    with pytest.raises(MessageError, match="cannot convert a std_srvs/srv/SetBool_Request from ROS 1"):
+        messages.ros1_to_message(b"", "std_srvs/srv/SetBool_Request")

@@ -1,10 +1,19 @@
-"""The fleet ↔ ROS 1 bridge: topics chosen by rules, converted between CDR and ROS 1 bytes, in both directions.
+"""The fleet ↔ ROS 1 bridge: topics and services chosen by rules, converted between CDR and ROS 1 bytes, in both
+directions.
 
 A rule is a pattern (``fnmatch``, ``*`` for all) or an exact name remapped with ``from:=to``. Every second the
-bridge looks at both graphs (the fleet's liveliness tokens, the master's published topics) and bridges each
-new topic a rule selects, unless its only publisher is the bridge itself (no echo loops). A fleet topic whose
-publisher is transient-local becomes a latched ROS 1 topic. Fleet subscriptions report statistics like any
-other; the ROS 1 side counts messages and conversion errors per topic (:meth:`Ros1Bridge.topic_counts`).
+bridge looks at both graphs (the fleet's liveliness tokens, the master's published topics and services) and
+bridges each new topic or service a rule selects, unless its only publisher or provider is the bridge itself
+(no echo loops). A fleet topic whose publisher is transient-local becomes a latched ROS 1 topic. Fleet
+subscriptions report statistics like any other; the ROS 1 side counts messages and conversion errors per topic
+(:meth:`Ros1Bridge.topic_counts`) and calls and failures per service (:meth:`Ros1Bridge.service_counts`).
+
+Services are bridged where their type exists on both sides (:data:`messages.ROS1_SERVICES` and fleetslam_msgs);
+a service of another type is skipped with one log line naming it. A bridged call waits for the far side at most
+``service_timeout_s``; a call that fails or times out there is a failed call here (ROS 1: an error answer with
+the reason; fleet: the middleware's error reply), never a hung bridge. Fleet services provided for ROS 1
+services are served by a second node, ``<name>_services``, so a slow ROS 1 service cannot hold up the topics
+that the bridge's own node forwards.
 """
 
 from __future__ import annotations
@@ -17,9 +26,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from fleetslam.errors import FleetslamError, MiddlewareError
-from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.node import Publisher
+from fleetslam.middleware import Node, QoSProfile, typesys
+from fleetslam.middleware.node import Client, Publisher
 from fleetslam.ros1 import messages
+from fleetslam.ros1.messages import Ros1ServiceType
 from fleetslam.ros1.node import Ros1Node, Ros1Publisher
 
 log = logging.getLogger(__name__)
@@ -57,7 +67,8 @@ def select(rules: Sequence[TopicRule], topic: str) -> str | None:
 
 
 class Ros1Bridge:
-    """Bridges ``node``'s fleet and ``ros1``'s master by ``to_ros1`` and ``from_ros1`` rules."""
+    """Bridges ``node``'s fleet and ``ros1``'s master: topics by ``to_ros1`` and ``from_ros1`` rules, services by
+    ``services_to_ros1`` and ``services_from_ros1`` rules."""
 
     def __init__(
         self,
@@ -66,19 +77,34 @@ class Ros1Bridge:
         *,
         to_ros1: Sequence[TopicRule] = (),
         from_ros1: Sequence[TopicRule] = (),
+        services_to_ros1: Sequence[TopicRule] = (),
+        services_from_ros1: Sequence[TopicRule] = (),
+        service_timeout_s: float = 10.0,
         scan_period_s: float = 1.0,
     ) -> None:
         self.node = node
         self.ros1 = ros1
         self.to_ros1 = list(to_ros1)
         self.from_ros1 = list(from_ros1)
+        self.services_to_ros1 = list(services_to_ros1)
+        self.services_from_ros1 = list(services_from_ros1)
+        self.service_timeout_s = service_timeout_s
         self.scan_period_s = scan_period_s
         self.bridged_to_ros1: dict[str, str] = {}
         """Fleet topic -> ROS 1 topic."""
         self.bridged_from_ros1: dict[str, str] = {}
         """ROS 1 topic -> fleet topic."""
+        self.services_bridged_to_ros1: dict[str, str] = {}
+        """Fleet service -> ROS 1 service."""
+        self.services_bridged_from_ros1: dict[str, str] = {}
+        """ROS 1 service -> fleet service."""
+        self.fleet_service_calls: dict[str, dict[str, int]] = {}
+        """Per fleet service provided for a ROS 1 service: calls answered and failed."""
+        self.service_node: Node | None = None
+        """The node that provides the fleet services standing for ROS 1 services (made on first need)."""
         self.errors: dict[str, int] = {}
         self._refused: set[tuple[str, str]] = set()
+        self._skipped_services: set[str] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ros1-bridge-scan", daemon=True)
 
@@ -91,6 +117,8 @@ class Ros1Bridge:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=5.0)
+        if self.service_node is not None:
+            self.service_node.destroy()
 
     def __enter__(self) -> Ros1Bridge:
         return self.start()
@@ -111,11 +139,21 @@ class Ros1Bridge:
             self._scan_fleet()
         if self.from_ros1:
             self._scan_ros1()
+        if self.services_to_ros1:
+            self._scan_fleet_services()
+        if self.services_from_ros1:
+            self._scan_ros1_services()
+
+    def _own_fleet_nodes(self) -> set[str]:
+        own = {self.node.fq_name}
+        if self.service_node is not None:
+            own.add(self.service_node.fq_name)
+        return own
 
     def _refuse_once(self, topic: str, type_name: str, err: Exception) -> None:
         if (topic, type_name) not in self._refused:
             self._refused.add((topic, type_name))
-            log.warning("not bridging %s: %s", topic, err)
+            log.warning("not bridging %s [%s]: %s", topic, type_name, err)
 
     # -- fleet -> ROS 1 -------------------------------------------------------------------------------------
     def _scan_fleet(self) -> None:
@@ -191,3 +229,100 @@ class Ros1Bridge:
         for topic, pub in self.ros1.publishers.items():
             counts[topic] = {"published": pub.published, "errors": self.errors.get(topic, 0)}
         return counts
+
+    def service_counts(self) -> dict[str, dict[str, int]]:
+        """Per bridged service, named on the side that is called: calls answered and failed."""
+        counts = {name: {"calls": srv.calls, "errors": srv.errors} for name, srv in self.ros1.services.items()}
+        counts.update({name: dict(c) for name, c in self.fleet_service_calls.items()})
+        return counts
+
+    # -- services: fleet -> ROS 1 ---------------------------------------------------------------------------
+    def _service_type(self, name: str, type_name: str) -> Ros1ServiceType | None:
+        """The service type both sides know, or None (logged once) when one side lacks it."""
+        try:
+            srv_type = messages.service_info(type_name)
+            typesys.service_types(srv_type.name)
+        except FleetslamError as err:
+            self._refuse_once(name, type_name, err)
+            return None
+        return srv_type
+
+    def _scan_fleet_services(self) -> None:
+        graph = self.node.context.graph
+        own = self._own_fleet_nodes()
+        for name, types in graph.service_names_and_types().items():
+            target = select(self.services_to_ros1, name)
+            if target is None or name in self.services_bridged_to_ros1:
+                continue
+            if target in self.services_bridged_from_ros1 or target in self.ros1.services:
+                continue  # that ROS 1 name is taken by a ROS 1 service bridged the other way
+            servers = [s for s in graph.services_info(name) if s.node_fq_name not in own]
+            if not servers or len(types) != 1:
+                continue
+            srv_type = self._service_type(name, types[0])
+            if srv_type is None:
+                continue
+            client = self.node.create_client(srv_type.name, name)
+            try:
+                self.ros1.advertise_service(target, srv_type, self._to_fleet_call(client, srv_type))
+            except FleetslamError:
+                client.destroy()  # the master may be restarting; the next scan tries again
+                raise
+            self.services_bridged_to_ros1[name] = target
+            log.info("bridging fleet service %s -> ROS 1 %s [%s]", name, target, srv_type.ros1_name)
+
+    def _to_fleet_call(self, client: Client, srv_type: Ros1ServiceType) -> Any:
+        def call(raw: bytes, caller: str) -> bytes:
+            request = messages.ros1_to_message(raw, srv_type.request_name)
+            response = client.call(request, timeout=self.service_timeout_s)
+            return messages.message_to_ros1(response, srv_type.response_name)
+
+        return call
+
+    # -- services: ROS 1 -> fleet ---------------------------------------------------------------------------
+    def _scan_ros1_services(self) -> None:
+        for name, providers in self.ros1.services_of().items():
+            target = select(self.services_from_ros1, name)
+            if target is None or name in self.services_bridged_from_ros1:
+                continue
+            if target in self.services_bridged_to_ros1 or not [p for p in providers if p != self.ros1.caller_id]:
+                continue
+            if name in self._skipped_services:
+                continue  # its type was refused once; the probe would only say so again
+            try:
+                header = self.ros1.probe_service(name)
+            except FleetslamError as err:
+                log.debug("ROS 1 service %s: %s (next scan tries again)", name, err)
+                continue
+            ros1_type = header.get("type", "?")
+            srv_type = self._service_type(name, ros1_type)
+            if srv_type is not None and header.get("md5sum") != srv_type.md5sum:
+                mismatch = MiddlewareError(f"its md5 {header.get('md5sum')} is not {ros1_type}'s {srv_type.md5sum}")
+                self._refuse_once(name, ros1_type, mismatch)
+                srv_type = None
+            if srv_type is None:
+                self._skipped_services.add(name)
+                continue
+            if self.service_node is None:
+                self.service_node = Node(
+                    f"{self.node.name}_services", context=self.node.context, namespace=self.node.namespace
+                )
+            self.service_node.create_service(srv_type.name, target, self._to_ros1_call(name, srv_type, target))
+            self.services_bridged_from_ros1[name] = target
+            log.info("bridging ROS 1 service %s -> fleet %s [%s]", name, target, srv_type.name)
+
+    def _to_ros1_call(self, name: str, srv_type: Ros1ServiceType, target: str) -> Any:
+        counts = self.fleet_service_calls.setdefault(target, {"calls": 0, "errors": 0})
+
+        def call(request: Any) -> Any:
+            try:
+                raw = messages.message_to_ros1(request, srv_type.request_name)
+                answer = self.ros1.call_service(name, srv_type, raw, timeout_s=self.service_timeout_s)
+                response = messages.ros1_to_message(answer, srv_type.response_name)
+            except FleetslamError:
+                counts["errors"] += 1
+                raise  # the fleet service replies with the error, naming the ROS 1 service and why
+            counts["calls"] += 1
+            return response
+
+        return call

@@ -1,12 +1,19 @@
 """A ROS 1 node in pure Python: the master's XML-RPC API (as a client), the slave API (as a server) and TCPROS.
 
 Enough of ROS 1 for a bridge: advertise and publish raw ROS 1 bytes (latched or not), subscribe and receive raw
-bytes, answer ``rosnode info/ping`` and ``rostopic`` probes, follow ``publisherUpdate``, and register again when
-the master restarts (a watchdog compares the master's pid). Every peer is untrusted: a malformed header or
-message closes that one connection with a logged reason; nothing a peer sends stops the node.
+bytes, provide and call services (raw request and response bytes), answer ``rosnode info/ping``, ``rostopic`` and
+``rosservice`` probes, follow ``publisherUpdate``, and register again when the master restarts (a watchdog
+compares the master's pid). Every peer is untrusted: a malformed header or message closes that one connection
+with a logged reason; nothing a peer sends stops the node.
 
-Threads: one XML-RPC server, one TCPROS accept loop, one watchdog, one reader per inbound connection and one
-writer per outbound connection (a slow subscriber drops its oldest queued messages, it never blocks others).
+Services speak TCPROS on the same port as topics: the caller's header names ``service`` (not ``topic``),
+``md5sum`` and ``callerid`` (``probe=1`` asks for the reply header only, ``persistent=1`` keeps the connection
+for more calls); each request is a length-prefixed message, each answer an ok byte (1) and the response, or 0
+and an error string.
+
+Threads: one XML-RPC server, one TCPROS accept loop, one watchdog, one reader per inbound connection (a service
+call runs its handler there) and one writer per outbound connection (a slow subscriber drops its oldest queued
+messages, it never blocks others).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import os
 import socket
 import socketserver
 import threading
+import time
 import xmlrpc.client
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,9 +34,9 @@ from typing import Any
 from urllib.parse import urlparse
 from xmlrpc.server import SimpleXMLRPCRequestHandler, SimpleXMLRPCServer
 
-from fleetslam.errors import MiddlewareError
+from fleetslam.errors import MiddlewareError, ServiceError
 from fleetslam.ros1 import tcpros
-from fleetslam.ros1.messages import Ros1Type
+from fleetslam.ros1.messages import Ros1ServiceType, Ros1Type
 
 log = logging.getLogger(__name__)
 
@@ -236,6 +244,48 @@ class Ros1Subscription:
             sock.close()
 
 
+class Ros1ServiceServer:
+    """Provides a ROS 1 service: ``handler(request_bytes, caller_id) -> response_bytes`` answers each call on the
+    caller's connection thread; an exception it raises is the caller's error answer (ok byte 0 and the reason)."""
+
+    def __init__(
+        self, node: Ros1Node, name: str, srv_type: Ros1ServiceType, handler: Callable[[bytes, str], bytes]
+    ) -> None:
+        self.node = node
+        self.name = name
+        self.type = srv_type
+        self.handler = handler
+        self.calls = 0
+        self.errors = 0
+
+    def serve(self, sock: socket.socket, caller: str, *, persistent: bool) -> None:
+        """Answer one call (or, persistent, calls until the caller closes); closes ``sock``."""
+        answered = 0
+        try:
+            while True:
+                # A caller sends its request right after the headers; a persistent one may wait between calls.
+                sock.settimeout(None if answered else HEADER_TIMEOUT_S)
+                request = tcpros.recv_message(sock)
+                try:
+                    answer = b"\x01" + tcpros.frame(self.handler(request, caller))
+                    self.calls += 1
+                except Exception as err:  # any failure of the handler is the caller's answer, not ours to raise
+                    self.errors += 1
+                    log.info("ROS 1 service %s: call from %s failed: %s", self.name, caller, err)
+                    answer = b"\x00" + tcpros.frame(f"{self.name}: {err}".encode())
+                sock.sendall(answer)
+                answered += 1
+                if not persistent:
+                    return
+        except (OSError, MiddlewareError) as err:
+            # After a first call, a persistent caller ends the connection by closing it: that is no error.
+            (log.debug if answered else log.info)("ROS 1 service %s: %s ended: %s", self.name, caller, err)
+        finally:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+
+
 class _QuietHandler(SimpleXMLRPCRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:
         log.debug("xmlrpc: " + format, *args)
@@ -255,6 +305,7 @@ class Ros1Node:
         self.watchdog_period_s = watchdog_period_s
         self.publishers: dict[str, Ros1Publisher] = {}
         self.subscriptions: dict[str, Ros1Subscription] = {}
+        self.services: dict[str, Ros1ServiceServer] = {}
         self.registrations = 0
         """How many times this node registered with a master (1 + restarts survived)."""
         self._lock = threading.Lock()
@@ -268,6 +319,7 @@ class Ros1Node:
         self.uri = f"http://{host}:{self._xmlrpc.server_address[1]}/"
         self._tcpros = socket.create_server((host, 0))
         self.tcpros_port = self._tcpros.getsockname()[1]
+        self.service_uri = f"rosrpc://{host}:{self.tcpros_port}"
         self._threads = [
             threading.Thread(target=self._xmlrpc.serve_forever, name="ros1-xmlrpc", daemon=True),
             threading.Thread(target=self._accept, name="ros1-tcpros", daemon=True),
@@ -304,6 +356,9 @@ class Ros1Node:
             with contextlib.suppress(MiddlewareError):
                 xmlrpc_call(self.master_uri, "unregisterSubscriber", self.caller_id, topic, self.uri, timeout_s=1.0)
             sub.close()
+        for name in list(self.services):
+            with contextlib.suppress(MiddlewareError):
+                xmlrpc_call(self.master_uri, "unregisterService", self.caller_id, name, self.service_uri, timeout_s=1.0)
         self._shutdown_servers()
 
     def _shutdown_servers(self) -> None:
@@ -354,6 +409,107 @@ class Ros1Node:
         )
         sub.update_publishers([str(u) for u in uris])
 
+    # -- services -------------------------------------------------------------------------------------------
+    def advertise_service(
+        self, name: str, srv_type: Ros1ServiceType, handler: Callable[[bytes, str], bytes]
+    ) -> Ros1ServiceServer:
+        """Provide service ``name``: ``handler(request_bytes, caller_id) -> response_bytes``."""
+        with self._lock:
+            if name in self.services:
+                raise MiddlewareError(f"ROS 1 service {name} is already provided by {self.caller_id}")
+            server = self.services[name] = Ros1ServiceServer(self, name, srv_type, handler)
+        try:
+            self._register_service(server)
+        except MiddlewareError:
+            del self.services[name]  # the caller may try again once the master is back
+            raise
+        return server
+
+    def _register_service(self, server: Ros1ServiceServer) -> None:
+        xmlrpc_call(self.master_uri, "registerService", self.caller_id, server.name, self.service_uri, self.uri)
+
+    def lookup_service(self, name: str) -> tuple[str, int]:
+        """(host, port) of the TCPROS server that provides ``name``; :class:`ServiceError` when none does."""
+        try:
+            uri = str(xmlrpc_call(self.master_uri, "lookupService", self.caller_id, name))
+        except MiddlewareError as err:
+            raise ServiceError(f"ROS 1 service {name}: no provider ({err})") from err
+        parsed = urlparse(uri)
+        if parsed.scheme != "rosrpc" or not parsed.hostname or parsed.port is None:
+            raise ServiceError(f"ROS 1 service {name}: the master gave {uri!r}, not rosrpc://host:port")
+        return parsed.hostname, parsed.port
+
+    def _service_connection(self, name: str, header: dict[str, str], timeout_s: float) -> socket.socket:
+        """A connection to ``name``'s provider after the header exchange; returns it with the reply header read
+        into ``header`` (which is replaced by the provider's)."""
+        host, port = self.lookup_service(name)
+        sock = socket.create_connection((host, port), timeout=timeout_s)
+        try:
+            sock.sendall(tcpros.encode_header({"callerid": self.caller_id, "service": name, **header}))
+            reply = tcpros.recv_header(sock)
+        except (OSError, MiddlewareError):
+            sock.close()
+            raise
+        header.clear()
+        header.update(reply)
+        return sock
+
+    def probe_service(self, name: str, *, timeout_s: float = HEADER_TIMEOUT_S) -> dict[str, str]:
+        """The header a service's provider answers a probe with (``type``, ``md5sum``, ...), as rosservice asks."""
+        header = {"md5sum": "*", "probe": "1"}
+        try:
+            self._service_connection(name, header, timeout_s).close()
+        except (OSError, MiddlewareError) as err:
+            raise ServiceError(f"ROS 1 service {name}: probe failed: {err}") from err
+        if "error" in header:
+            raise ServiceError(f"ROS 1 service {name}: probe refused: {header['error']}")
+        return header
+
+    def call_service(self, name: str, srv_type: Ros1ServiceType, request: bytes, *, timeout_s: float = 10.0) -> bytes:
+        """Call ``name`` with serialised ``request``; the serialised response, or :class:`ServiceError` naming why
+        not (no provider, refused, the provider's error string, no answer within ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+
+        def remaining() -> float:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"no response within {timeout_s} s")
+            return left
+
+        header = {"md5sum": srv_type.md5sum, "type": srv_type.ros1_name}
+        try:
+            sock = self._service_connection(name, header, timeout_s)
+        except (OSError, MiddlewareError) as err:
+            raise ServiceError(f"ROS 1 service {name} ({srv_type.ros1_name}): {err}") from err
+        with sock:
+            try:
+                if "error" in header:
+                    raise ServiceError(f"refused: {header['error']}")
+                if header.get("md5sum") != srv_type.md5sum:
+                    raise ServiceError(
+                        f"the provider serves {header.get('type')} (md5 {header.get('md5sum')}), not"
+                        f" {srv_type.ros1_name} ({srv_type.md5sum})"
+                    )
+                sock.settimeout(remaining())
+                sock.sendall(tcpros.frame(request))
+                sock.settimeout(remaining())
+                ok = tcpros.recv_exact(sock, 1)
+                sock.settimeout(remaining())
+                body = tcpros.recv_message(sock)
+            except (OSError, MiddlewareError) as err:
+                if isinstance(err, socket.timeout):
+                    err = TimeoutError(f"no response within {timeout_s} s")
+                raise ServiceError(f"ROS 1 service {name} ({srv_type.ros1_name}): {err}") from err
+        if ok != b"\x01":
+            reason = body.decode(errors="replace")
+            raise ServiceError(f"ROS 1 service {name} ({srv_type.ros1_name}) failed: {reason}")
+        return body
+
+    def services_of(self) -> dict[str, list[str]]:
+        """ROS 1 service -> caller ids of its providers (``getSystemState``)."""
+        state = xmlrpc_call(self.master_uri, "getSystemState", self.caller_id)
+        return {str(name): [str(n) for n in nodes] for name, nodes in state[2]}
+
     def published_topics(self) -> dict[str, str]:
         """ROS 1 topic -> type of every topic some node publishes (``getPublishedTopics``)."""
         return {str(t): str(ty) for t, ty in xmlrpc_call(self.master_uri, "getPublishedTopics", self.caller_id, "")}
@@ -380,6 +536,8 @@ class Ros1Node:
                         self._register_publisher(pub)
                     for sub in list(self.subscriptions.values()):
                         self._register_subscriber(sub)
+                    for server in list(self.services.values()):
+                        self._register_service(server)
                 except MiddlewareError as err:
                     log.warning("registering again with %s failed: %s", self.master_uri, err)
                     continue
@@ -400,11 +558,24 @@ class Ros1Node:
         sock.settimeout(HEADER_TIMEOUT_S)
         try:
             header = tcpros.recv_header(sock)
-            reply, pub = self._answer(header)
-            sock.sendall(tcpros.encode_header(reply))
+            if "service" in header:
+                service_reply, server = self._answer_service(header)
+                sock.sendall(tcpros.encode_header(service_reply))
+            else:
+                reply, pub = self._answer(header)
+                sock.sendall(tcpros.encode_header(reply))
         except (OSError, MiddlewareError) as err:
             log.warning("TCPROS connection from %s refused: %s", peer, err)
             sock.close()
+            return
+        if "service" in header:
+            if server is None or header.get("probe") == "1":
+                sock.close()
+                return
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            persistent = header.get("persistent", "").lower() in ("1", "true")
+            server.serve(sock, f"{header['callerid']} at {peer}", persistent=persistent)
             return
         if pub is None or header.get("probe") == "1":
             sock.close()
@@ -418,7 +589,7 @@ class Ros1Node:
         """The reply to a subscriber's header, and the publisher it connects to (None: an error reply)."""
         topic = header.get("topic")
         if topic is None:
-            return {"error": "header has no 'topic' (services are not served here)"}, None
+            return {"error": "header names no 'topic' and no 'service'"}, None
         pub = self.publishers.get(topic)
         if pub is None:
             return {"error": f"{self.caller_id} does not publish {topic}"}, None
@@ -436,6 +607,31 @@ class Ros1Node:
             "latching": "1" if pub.latch else "0",
         }
         return reply, pub
+
+    def _answer_service(self, header: dict[str, str]) -> tuple[dict[str, str], Ros1ServiceServer | None]:
+        """The reply to a service caller's header, and the service it calls (None: an error reply)."""
+        name = header["service"]
+        missing = [key for key in ("md5sum", "callerid") if key not in header]
+        if missing:
+            return {"error": f"service header lacks {', '.join(missing)}"}, None
+        server = self.services.get(name)
+        if server is None:
+            return {"error": f"{self.caller_id} does not provide service {name}"}, None
+        srv = server.type
+        if header["md5sum"] not in ("*", srv.md5sum):
+            return {
+                "error": f"{name} is {srv.ros1_name} (md5 {srv.md5sum}), the caller asked for"
+                f" {header.get('type', '?')} (md5 {header['md5sum']})"
+            }, None
+        reply = {
+            "callerid": self.caller_id,
+            "service": name,
+            "type": srv.ros1_name,
+            "md5sum": srv.md5sum,
+            "request_type": srv.request.ros1_name,
+            "response_type": srv.response.ros1_name,
+        }
+        return reply, server
 
 
 class _SlaveApi:
