@@ -19,10 +19,12 @@ the machine; both are reported). The last line
 summarises the targets; ``slam_matrix.png`` is the heat map.
 
 Usage: python benchmarks/slam_matrix.py [--scenes procedural,photographic] [--routes ...] [--resolutions ...]
-           [--rates 5,10,15,30] [--platforms ground,handheld] [--peer] [--jobs N] [--out results/benchmarks]
+           [--rates 5,10,15,30] [--platforms ground,handheld] [--peer] [--jobs N] [--set KEY=VALUE ...]
+           [--out results/benchmarks]
 
 ``--jobs N`` runs N cells (and first the missing exports) in parallel processes; each cell stays on one thread, so
-its per-frame CPU time is what it costs one core either way.
+its per-frame CPU time is what it costs one core either way. ``--set odometry.surface_samples=0`` (repeatable) measures
+a configuration other than the defaults (the summary line names the overrides).
 """
 
 from __future__ import annotations
@@ -102,9 +104,10 @@ class _Frames:
         return self.source.groundtruth()
 
 
-def run_cell(cell: Cell, peer: bool) -> dict[str, Any]:
+def run_cell(cell: Cell, peer: bool, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     import cv2
 
+    from fleetslam.config import load_config
     from fleetslam.datasets import open_source
     from fleetslam.eval import ape
     from fleetslam.slam.config import SlamConfig
@@ -113,7 +116,8 @@ def run_cell(cell: Cell, peer: bool) -> dict[str, Any]:
     cv2.setNumThreads(1)
     source = open_source(export(cell.scene, cell.route, cell.resolution))
     frames = _Frames(source, EXPORT_HZ // cell.rate, cell.platform == "ground")
-    pipeline = SlamPipeline(SlamConfig(), frames, base_camera=frames.base_camera)
+    config = load_config(SlamConfig, overrides=list(overrides))
+    pipeline = SlamPipeline(config, frames, base_camera=frames.base_camera)
     if frames.base_camera is None:
         pipeline.set_mounting(None)
     t0 = time.perf_counter()
@@ -248,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--platforms", default="ground,handheld")
     parser.add_argument("--peer", action="store_true", help="also run Open3D's RGB-D odometry on every cell")
     parser.add_argument("--jobs", type=int, default=1, help="cells run in parallel processes")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a SLAM setting")
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks"), help="folder for the heat map")
     args = parser.parse_args(argv)
     rates = [int(r) for r in _csv(args.rates)]
@@ -268,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
         exports = sorted({(c.scene, c.route, c.resolution) for c in cells})
         for done in pool.map(export, *zip(*exports, strict=True)):
             print(f"export ready: {done.name}", file=sys.stderr, flush=True)
-        futures = {pool.submit(run_cell, cell, args.peer): cell for cell in cells}
+        futures = {pool.submit(run_cell, cell, args.peer, tuple(args.set)): cell for cell in cells}
         for k, future in enumerate(concurrent.futures.as_completed(futures), 1):
             record = future.result()
             records.append(record)
@@ -279,6 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     records.sort(key=lambda r: order[r["cell"]])
     args.out.mkdir(parents=True, exist_ok=True)
     final = summary(records)
+    final["overrides"] = args.set
     png = heat_map(records, args.out / "slam_matrix.png")
     final["plot"] = str(png) if png is not None else None
     (args.out / "slam_matrix.jsonl").write_text("\n".join(json.dumps(r) for r in [*records, final]) + "\n")

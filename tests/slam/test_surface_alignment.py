@@ -68,7 +68,7 @@ def test_geometry_alone_recovers_a_motion(motion: np.ndarray) -> None:
     keyframe, frame = np.eye(4), motion
     term = surface_term(keyframe, frame, rng)
     none = np.zeros((0, 3))
-    estimate = invert(refine_pose(invert(keyframe), none, np.zeros((0, 2)), INTRINSICS.K, iterations=10, surface=term))
+    estimate = invert(refine_pose(invert(keyframe), none, np.zeros((0, 2)), INTRINSICS.K, iterations=10, dense=[term]))
     error = invert(frame) @ estimate
     # Three orthogonal planes fix all six degrees of freedom; with a Kinect's noise on every pixel (1.4 cm at 3 m)
     # 2.6 and 3.2 mm, 0.07° measured.

@@ -35,7 +35,8 @@ from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
-from fleetslam.slam.pose_refinement import planar_basis, refine_pose, refine_pose_with_prior
+from fleetslam.slam.photometric_alignment import FrameIntensity, KeyframeIntensity, PhotometricTerm
+from fleetslam.slam.pose_refinement import DenseTerm, planar_basis, refine_pose, refine_pose_with_prior
 from fleetslam.slam.surface_alignment import KeyframeSurface, SurfaceTerm, depth_samples, sample_stride
 from fleetslam.slam.triangulation import match_and_triangulate
 
@@ -184,6 +185,8 @@ class _WindowKeyframe:
     """The wheel odometry's camera pose at this keyframe (``T_odom_camera``), when known."""
     surface: KeyframeSurface | None = None
     """Its depth as vertices and normals, for the next frames' surface term."""
+    intensity: KeyframeIntensity | None = None
+    """Its selected pixels' points and intensities, for the next frames' photometric term."""
 
 
 def wheel_motion_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[float, float]:
@@ -237,6 +240,9 @@ class VisualOdometry:
         self._lost_frames = 0
         self._adjustment_pending = False
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
+        self._photometric_block = (
+            sample_stride(intrinsics, config.photometric_samples) if config.photometric_samples > 0 else 0
+        )
 
     # -- prediction ---------------------------------------------------------------------------------------------
     def _predict(self, prior: NDArray[np.float64] | None) -> _Prediction:
@@ -300,7 +306,12 @@ class VisualOdometry:
         self._last_stamp = stamp
         prior_arr = None if prior is None else np.asarray(prior, dtype=np.float64)
         prediction = self._predict(prior_arr)
-        frame = _Frame(feats, points_cam, valid, prior_arr, depth if self._surface_stride else None)
+        intensity = (
+            FrameIntensity.from_gray(gray, self.config.photometric_blur * self._pixel_scale)
+            if self._photometric_block
+            else None
+        )
+        frame = _Frame(feats, points_cam, valid, prior_arr, depth, intensity)
         self.frames += 1
 
         if len(self.local_map) == 0:
@@ -416,7 +427,7 @@ class VisualOdometry:
         T_cw = invert(start)
         keep = np.ones(n, bool)
         fused: tuple[NDArray[np.float64], tuple[float, float]] | None = None
-        surface = self._surface_term(frame)
+        dense = self._dense_terms(frame)
         for first in (True, False):
             idx = np.flatnonzero(keep)
             depth = (depths[idx], self.config.depth_noise)
@@ -425,13 +436,13 @@ class VisualOdometry:
                 T_cw, used = refine_pose_with_prior(
                     T_cw, points[idx], pixels[idx], self._K, invert(prediction.pose), prediction.std,
                     pixel_std=pixel_std[idx], huber_px=huber, iterations=4,
-                    gate=self.config.motion_prior_gate, basis=basis, depth=depth, surface=surface,
+                    gate=self.config.motion_prior_gate, basis=basis, depth=depth, dense=dense,
                 )  # fmt: skip
                 fused = (invert(prediction.pose), prediction.std) if used else None
             else:
                 T_cw = refine_pose(
                     T_cw, points[idx], pixels[idx], self._K, pixel_std=pixel_std[idx], huber_px=huber,
-                    iterations=4 if first else 3, basis=basis, depth=depth, prior=fused, surface=surface,
+                    iterations=4 if first else 3, basis=basis, depth=depth, prior=fused, dense=dense,
                 )  # fmt: skip
             chi2 = _chi2(T_cw, points, pixels, pixel_std, depths, self.config.depth_noise, self._K)
             # χ² at 95 % for 2 (no depth) or 3 (with depth) residuals, as ORB-SLAM's mono/stereo thresholds.
@@ -526,6 +537,7 @@ class VisualOdometry:
                 scales=frame.features.scales[observed].astype(np.float64),
                 prior=frame.prior,
                 surface=self._keyframe_surface(frame),
+                intensity=self._keyframe_intensity(frame),
             )
         )
         feats = frame.features
@@ -555,24 +567,37 @@ class VisualOdometry:
         return adjusted.copy()
 
     def _keyframe_surface(self, frame: _Frame) -> KeyframeSurface | None:
-        if frame.depth is None:
+        if not self._surface_stride:
             return None
         return KeyframeSurface.from_depth(
             frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
         )
 
-    def _surface_term(self, frame: _Frame) -> SurfaceTerm | None:
-        """The point-to-plane term against the newest keyframe's surface; None when off or there is no surface."""
-        if frame.depth is None or not self.window:
+    def _keyframe_intensity(self, frame: _Frame) -> KeyframeIntensity | None:
+        if frame.intensity is None:
             return None
+        return KeyframeIntensity.select(
+            frame.intensity, frame.depth, self.intrinsics, self._photometric_block,
+            self.config.photometric_min_gradient, self.config.min_depth, self.config.max_depth,
+        )  # fmt: skip
+
+    def _dense_terms(self, frame: _Frame) -> list[DenseTerm]:
+        """The point-to-plane and photometric terms against the newest keyframe, those that are on and have what
+        they need."""
+        if not self.window:
+            return []
         keyframe = self.window[-1]
-        if keyframe.surface is None:
-            return None
-        points = depth_samples(
-            frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
-        )
-        return SurfaceTerm(keyframe.surface, keyframe.pose, points, self.config.depth_noise,
-                           self.config.surface_std_scale)  # fmt: skip
+        terms: list[DenseTerm] = []
+        if keyframe.surface is not None:
+            points = depth_samples(
+                frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
+            )
+            terms.append(SurfaceTerm(keyframe.surface, keyframe.pose, points, self.config.depth_noise,
+                                     self.config.surface_std_scale))  # fmt: skip
+        if keyframe.intensity is not None and frame.intensity is not None and len(keyframe.intensity.points):
+            terms.append(PhotometricTerm(keyframe.intensity, keyframe.pose, frame.intensity, self._K,
+                                         self.config.photometric_std))  # fmt: skip
+        return terms
 
     def _triangulate(
         self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
@@ -812,8 +837,9 @@ class _Frame:
     """(N, 3) camera-frame points of the keypoints (valid where ``valid``)."""
     valid: NDArray[np.bool_]
     prior: NDArray[np.float64] | None
-    depth: NDArray[np.float32] | None = None
-    """The depth image (for the surface term), when that term is on."""
+    depth: NDArray[np.float32]
+    intensity: FrameIntensity | None = None
+    """The smoothed image and its gradients (for the photometric term), when that term is on."""
 
 
 @dataclass

@@ -14,16 +14,26 @@ the prior keeps the estimate where the motion says it must be.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.geometry import skew, so3_exp, so3_log
-from fleetslam.slam.surface_alignment import SurfaceTerm
 
-#: Huber threshold of the point-to-plane residuals (standard deviations): a sample on a surface that moved or
-#: was wrongly associated pulls no harder than this.
-_SURFACE_HUBER = 2.0
+
+class DenseTerm(Protocol):
+    """Residuals of a frame's pixels against a keyframe (the point-to-plane and the photometric terms)."""
+
+    @property
+    def huber(self) -> float:
+        """Huber threshold in standard deviations: a pixel wrongly associated pulls no harder than this."""
+        ...
+
+    def linearize(self, T_camera_world: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Whitened residuals (m,) and their Jacobian (m, 6) in the left perturbation of ``T_camera_world``."""
+        ...
 
 
 def _pose_error(pose: NDArray[np.float64], reference_inverse: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -43,14 +53,14 @@ def _gauss_newton(
     iterations: int,
     basis: NDArray[np.float64] | None = None,
     depth: tuple[NDArray[np.float64], float] | None = None,
-    surface: SurfaceTerm | None = None,
+    dense: Sequence[DenseTerm] = (),
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Minimise the robust reprojection error (plus the prior ``(T_prior⁻¹, information)`` if given, and the depth
     residuals ``(measured depths, noise)`` where a depth is > 0: σ(z) = noise·z² + 1 mm); returns the pose, the
-    reprojection term's Gauss–Newton Hessian at it (with the surface term's, when given) and the a-posteriori
-    variance factor of the reprojections (the weighted squared residuals per degree of freedom: about 1 when
-    ``pixel_std`` is right). ``surface`` adds point-to-plane residuals of the frame's depth against a keyframe's
-    surface (:mod:`fleetslam.slam.surface_alignment`)."""
+    reprojection term's Gauss–Newton Hessian at it (with the dense terms') and the a-posteriori variance factor of
+    the reprojections (the weighted squared residuals per degree of freedom: about 1 when ``pixel_std`` is right).
+    ``dense`` adds residuals of the frame's pixels against a keyframe: point-to-plane of its depth
+    (:mod:`fleetslam.slam.surface_alignment`), intensity (:mod:`fleetslam.slam.photometric_alignment`)."""
     fx, fy, cx, cy = camera_matrix[0, 0], camera_matrix[1, 1], camera_matrix[0, 2], camera_matrix[1, 2]
     n = len(points_world)
     sigma = np.broadcast_to(np.asarray(pixel_std, np.float64), (n,))
@@ -94,15 +104,15 @@ def _gauss_newton(
         hessian = weighted.T @ flat
         gradient = weighted.T @ residual.reshape(-1)
         variance_factor = float(np.sum(weight * norm**2) / max(rows * n - 6, 1))
-        if surface is not None:
-            surface_residual, surface_jacobian = surface.linearize(pose)
+        for term in dense:
+            term_residual, term_jacobian = term.linearize(pose)
             if basis is not None:
-                surface_jacobian = surface_jacobian @ basis
-            size = np.abs(surface_residual)
-            surface_weight = np.where(size <= _SURFACE_HUBER, 1.0, _SURFACE_HUBER / np.maximum(size, 1e-12))
-            weighted_surface = surface_jacobian * surface_weight[:, None]
-            hessian = hessian + weighted_surface.T @ surface_jacobian
-            gradient = gradient + weighted_surface.T @ surface_residual
+                term_jacobian = term_jacobian @ basis
+            size = np.abs(term_residual)
+            term_weight = np.where(size <= term.huber, 1.0, term.huber / np.maximum(size, 1e-12))
+            weighted_term = term_jacobian * term_weight[:, None]
+            hessian = hessian + weighted_term.T @ term_jacobian
+            gradient = gradient + weighted_term.T @ term_residual
         system = hessian
         if prior is not None:
             prior_inverse, information = prior
@@ -137,7 +147,7 @@ def refine_pose(
     basis: NDArray[np.float64] | None = None,
     depth: tuple[NDArray[np.float64], float] | None = None,
     prior: tuple[NDArray[np.float64], tuple[float, float]] | None = None,
-    surface: SurfaceTerm | None = None,
+    dense: Sequence[DenseTerm] = (),
 ) -> NDArray[np.float64]:
     """``T_camera_world`` minimising the robust reprojection (and depth) error, with ``prior`` = (prior
     ``T_camera_world``, (metres, radians) per axis) fused unconditionally when given; ``basis`` and ``depth`` as in
@@ -149,7 +159,7 @@ def refine_pose(
         fused = (np.linalg.inv(np.asarray(prior[0], np.float64)), information)
     pose, _, _ = _gauss_newton(
         np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, fused, pixel_std, huber_px,
-        iterations, basis, depth, surface,
+        iterations, basis, depth, dense,
     )  # fmt: skip
     return pose
 
@@ -182,7 +192,7 @@ def refine_pose_with_prior(
     gate: float = 1000.0,
     basis: NDArray[np.float64] | None = None,
     depth: tuple[NDArray[np.float64], float] | None = None,
-    surface: SurfaceTerm | None = None,
+    dense: Sequence[DenseTerm] = (),
 ) -> tuple[NDArray[np.float64], bool]:
     """Refined ``T_camera_world`` (see the module docstring) and whether the prior was used.
 
@@ -194,13 +204,13 @@ def refine_pose_with_prior(
     Mahalanobis distance over their combined uncertainty above ``gate``): then the prediction is what is wrong
     (a collision, a slip, a hand-held jerk). The gate is far above χ²₆'s 22.5 because the reprojection
     covariance ignores the map points' own errors, which are correlated: on the simulated plant 5 % of
-    well-tracked frames exceed 100 although fusing them is right. ``surface``: see :func:`_gauss_newton`.
+    well-tracked frames exceed 100 although fusing them is right. ``dense``: see :func:`_gauss_newton`.
     """
     information: NDArray[np.float64] = np.diag([1.0 / prior_std[0] ** 2] * 3 + [1.0 / prior_std[1] ** 2] * 3)
     prior_inverse: NDArray[np.float64] = np.linalg.inv(np.asarray(prior_camera_world, np.float64))
     args = (points_world, pixels, camera_matrix)
     alone, hessian, variance_factor = _gauss_newton(
-        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations, basis, depth, surface
+        np.asarray(T_camera_world, np.float64), *args, None, pixel_std, huber_px, iterations, basis, depth, dense
     )
     # The points' real scatter (depth quantisation, keypoint noise) sets the weight of the reprojection term:
     # scale pixel_std by the observed residuals, never below the nominal value.
@@ -216,6 +226,6 @@ def refine_pose_with_prior(
     if float(innovation @ np.linalg.solve(combined, innovation)) > gate:
         return alone, False
     fused, _, _ = _gauss_newton(
-        alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations, basis, depth, surface
+        alone, *args, (prior_inverse, information), pixel_std, huber_px, iterations, basis, depth, dense
     )
     return fused, True

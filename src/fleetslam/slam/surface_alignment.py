@@ -124,6 +124,9 @@ class SurfaceTerm:
     pixels, and the surface is sampled), so they are worth less than independent measurements."""
     max_distance: float = 0.05
     """Pairs farther apart than this (metres, before the plane) are not the same surface."""
+    huber: float = 2.0
+    """Huber threshold in standard deviations: a sample on a surface that moved or was wrongly associated pulls
+    no harder than this."""
 
     def linearize(self, T_camera_world: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Whitened residuals (m,) and their Jacobian (m, 6) in the left perturbation (translation, rotation) of
