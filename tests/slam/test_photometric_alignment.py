@@ -8,7 +8,13 @@ import pytest
 
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle, so3_exp
-from fleetslam.slam.photometric_alignment import FrameIntensity, KeyframeIntensity, PhotometricTerm
+from fleetslam.slam.photometric_alignment import (
+    FrameIntensity,
+    KeyframeIntensity,
+    PhotometricTerm,
+    level_intrinsics,
+    pyramid_level,
+)
 from fleetslam.slam.pose_refinement import refine_pose
 from fleetslam.slam.surface_alignment import KeyframeSurface, SurfaceTerm, depth_samples, sample_stride
 
@@ -22,11 +28,14 @@ PLANES = [
 
 
 def render(
-    T_world_camera: np.ndarray, rng: np.random.Generator, planes: list[tuple[np.ndarray, float]] = PLANES
+    T_world_camera: np.ndarray,
+    rng: np.random.Generator,
+    planes: list[tuple[np.ndarray, float]] = PLANES,
+    intrinsics: Intrinsics = INTRINSICS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Grey image (uint8, with sensor noise) and depth (float32 m) of the planes (default: the corner), whose
     surfaces carry smooth stripes (edges, no corners for a feature detector to find)."""
-    k = INTRINSICS
+    k = intrinsics
     v, u = np.mgrid[0 : k.height, 0 : k.width].astype(np.float64)
     rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
     origin = T_world_camera[:3, 3]
@@ -47,16 +56,16 @@ def photometric_term(keyframe_pose: np.ndarray, frame_pose: np.ndarray, seed: in
     rng = np.random.default_rng(seed)
     key_gray, key_depth = render(keyframe_pose, rng)
     frame_gray, _ = render(frame_pose, rng)
-    key_intensity = FrameIntensity.from_gray(key_gray, blur_px=1.0)
-    selected = KeyframeIntensity.select(key_intensity, key_depth, INTRINSICS, 7, 4.0, 0.1, 6.0)
-    return PhotometricTerm(selected, keyframe_pose, FrameIntensity.from_gray(frame_gray, 1.0), INTRINSICS.K, 8.0)
+    key_intensity = FrameIntensity.from_gray(key_gray, INTRINSICS, blur_px=1.0)
+    selected = KeyframeIntensity.select(key_intensity, key_depth, 7, 4.0, 0.1, 6.0)
+    return PhotometricTerm(selected, keyframe_pose, FrameIntensity.from_gray(frame_gray, INTRINSICS, 1.0), 8.0)
 
 
 def test_selected_pixels_are_spread_and_carry_their_depth() -> None:
     rng = np.random.default_rng(0)
     gray, depth = render(np.eye(4), rng)
-    intensity = FrameIntensity.from_gray(gray, blur_px=1.0)
-    selected = KeyframeIntensity.select(intensity, depth, INTRINSICS, 8, 4.0, 0.1, 6.0)
+    intensity = FrameIntensity.from_gray(gray, INTRINSICS, blur_px=1.0)
+    selected = KeyframeIntensity.select(intensity, depth, 8, 4.0, 0.1, 6.0)
     # At most one pixel per 8×8 block (40×30 blocks), most blocks striped enough to give one.
     assert 0.6 * 1200 < len(selected.points) <= 1200
     u = selected.points[:, 0] * INTRINSICS.fx / selected.points[:, 2] + INTRINSICS.cx
@@ -128,10 +137,10 @@ def test_edges_hold_the_motion_that_a_plain_wall_leaves_to_the_surface_term_free
         KeyframeSurface.from_depth(key_depth, INTRINSICS, stride, 0.1, 6.0), np.eye(4),
         depth_samples(frame_depth, INTRINSICS, stride, 0.1, 6.0), 1.5e-3,
     )  # fmt: skip
-    intensity = FrameIntensity.from_gray(key_gray, 1.0)
+    intensity = FrameIntensity.from_gray(key_gray, INTRINSICS, 1.0)
     photometric = PhotometricTerm(
-        KeyframeIntensity.select(intensity, key_depth, INTRINSICS, 7, 4.0, 0.1, 6.0), np.eye(4),
-        FrameIntensity.from_gray(frame_gray, 1.0), INTRINSICS.K, 8.0,
+        KeyframeIntensity.select(intensity, key_depth, 7, 4.0, 0.1, 6.0), np.eye(4),
+        FrameIntensity.from_gray(frame_gray, INTRINSICS, 1.0), 8.0,
     )  # fmt: skip
     none, no_pixels = np.zeros((0, 3)), np.zeros((0, 2))
 
@@ -142,3 +151,27 @@ def test_edges_hold_the_motion_that_a_plain_wall_leaves_to_the_surface_term_free
     # Depth alone: the slide stays where it started (3.6 cm off, measured); with the stripes 0.005 cm.
     assert error_cm([surface]) > 3.0
     assert error_cm([surface, photometric]) < 0.3
+
+
+def test_a_pyramid_level_recovers_the_same_motion_at_a_quarter_of_the_pixels() -> None:
+    """A 640×480 image worked on at its 320×240 level: the level's intrinsics put the selected pixels where the
+    full image's would be, and the motion comes out as on a 320×240 camera."""
+    big = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
+    assert pyramid_level(640) == 1 and pyramid_level(320) == 0 and pyramid_level(1280) == 2 and pyramid_level(480) == 0
+    level = level_intrinsics(big, 1)
+    assert (level.width, level.height, level.fx, level.cx) == (320, 240, 262.5, 159.75)
+    motion = pose_from_xyz_rpy(0.02, -0.01, 0.03, 0.01, -0.015, 0.02)
+    rng = np.random.default_rng(5)
+    key_gray, key_depth = render(np.eye(4), rng, intrinsics=big)
+    frame_gray, _ = render(motion, rng, intrinsics=big)
+    key = FrameIntensity.from_gray(key_gray, big, 1.0, level=1)
+    selected = KeyframeIntensity.select(key, key_depth, 7, 4.0, 0.1, 6.0)
+    # Each selected point projects, in the full image, where its level pixel sits (pixel i on pixel 2i).
+    u = selected.points[:, 0] * big.fx / selected.points[:, 2] + big.cx
+    np.testing.assert_allclose(u / 2.0 - np.round(u / 2.0), 0.0, atol=1e-3)
+    term = PhotometricTerm(selected, np.eye(4), FrameIntensity.from_gray(frame_gray, big, 1.0, level=1), 8.0)
+    none = np.zeros((0, 3))
+    estimate = invert(refine_pose(np.eye(4), none, np.zeros((0, 2)), big.K, iterations=15, dense=[term]))
+    error = invert(motion) @ estimate
+    assert np.linalg.norm(error[:3, 3]) < 3e-3  # as on a 320×240 camera (the bounds of the test above)
+    assert np.degrees(rotation_angle(error)) < 0.1

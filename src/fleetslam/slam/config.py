@@ -149,13 +149,17 @@ class OdometryConfig(ConfigModel):
     surface_std_scale: float = Field(default=1.0, gt=0.0)
     """Multiplies the depth noise σ(z) as the point-to-plane residuals' standard deviation (1: the sensor's own;
     larger trusts the geometry less; 2 and 3 were tried and gave more drift on the feature-poor cells)."""
-    photometric_samples: int = Field(default=1500, ge=0)
+    photometric_samples: int = Field(default=0, ge=0)
     """Pixels of the newest keyframe compared by intensity with each frame (the strongest gradient of each block
-    of the image; :mod:`~fleetslam.slam.photometric_alignment`), refined together with the features and the
-    surface: edges that are not corners (tile joints, rails, stripes) hold the pose along a plain floor or wall,
-    where the surface term does not see. 0 = off. Over the matrix's 320×240 cells of the procedural hall and the
-    photographic survey it took the cells within target from 23 to 26 of 32 (every ground-robot cell now), about
-    2 ms per frame."""
+    of the image's level nearest 320 pixels wide; :mod:`~fleetslam.slam.photometric_alignment`), refined together
+    with the features and the surface: edges that are not corners (tile joints, rails, stripes) hold the pose along
+    a plain floor or wall, where the surface term does not see. 0 = off (the default). Measured with 1500 on the
+    matrix (benchmarks/slam_matrix.py --set odometry.photometric_samples=1500): at 320×240 it brought the
+    procedural hall and the photographic survey from 23 to 26 cells of 32 within target (every ground-robot cell,
+    e.g. the plant loop at 10 Hz 1.08 → 0.73 cm), at about 2 ms per frame; at 640×480 it made the hand-held camera
+    on the procedural survey worse (2.2 → 3.3 cm at 5 Hz, 2.9 → 4.0 cm at 10 Hz) and cost 4 ms per frame. A
+    camera of 320×240 or less in a texture-poor place gains from it; off by default until it helps everywhere.
+    """
     photometric_std: float = Field(default=8.0, gt=0.0)
     """Standard deviation of one intensity residual (grey levels): the sensor's noise and what the model leaves
     out (view-dependent shading, interpolation, correlated neighbours)."""

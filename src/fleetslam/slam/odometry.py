@@ -35,7 +35,13 @@ from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
-from fleetslam.slam.photometric_alignment import FrameIntensity, KeyframeIntensity, PhotometricTerm
+from fleetslam.slam.photometric_alignment import (
+    FrameIntensity,
+    KeyframeIntensity,
+    PhotometricTerm,
+    level_intrinsics,
+    pyramid_level,
+)
 from fleetslam.slam.pose_refinement import DenseTerm, planar_basis, refine_pose, refine_pose_with_prior
 from fleetslam.slam.surface_alignment import KeyframeSurface, SurfaceTerm, depth_samples, sample_stride
 from fleetslam.slam.triangulation import match_and_triangulate
@@ -240,8 +246,11 @@ class VisualOdometry:
         self._lost_frames = 0
         self._adjustment_pending = False
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
+        self._photometric_level = pyramid_level(intrinsics.width)
         self._photometric_block = (
-            sample_stride(intrinsics, config.photometric_samples) if config.photometric_samples > 0 else 0
+            sample_stride(level_intrinsics(intrinsics, self._photometric_level), config.photometric_samples)
+            if config.photometric_samples > 0
+            else 0
         )
 
     # -- prediction ---------------------------------------------------------------------------------------------
@@ -306,11 +315,11 @@ class VisualOdometry:
         self._last_stamp = stamp
         prior_arr = None if prior is None else np.asarray(prior, dtype=np.float64)
         prediction = self._predict(prior_arr)
-        intensity = (
-            FrameIntensity.from_gray(gray, self.config.photometric_blur * self._pixel_scale)
-            if self._photometric_block
-            else None
-        )
+        intensity = None
+        if self._photometric_block:
+            # The blur is given for a 640-pixel-wide image; the level is narrower by 2^level.
+            blur = self.config.photometric_blur * self._pixel_scale / 2**self._photometric_level
+            intensity = FrameIntensity.from_gray(gray, self.intrinsics, blur, self._photometric_level)
         frame = _Frame(feats, points_cam, valid, prior_arr, depth, intensity)
         self.frames += 1
 
@@ -577,7 +586,7 @@ class VisualOdometry:
         if frame.intensity is None:
             return None
         return KeyframeIntensity.select(
-            frame.intensity, frame.depth, self.intrinsics, self._photometric_block,
+            frame.intensity, frame.depth, self._photometric_block,
             self.config.photometric_min_gradient, self.config.min_depth, self.config.max_depth,
         )  # fmt: skip
 
@@ -595,7 +604,7 @@ class VisualOdometry:
             terms.append(SurfaceTerm(keyframe.surface, keyframe.pose, points, self.config.depth_noise,
                                      self.config.surface_std_scale))  # fmt: skip
         if keyframe.intensity is not None and frame.intensity is not None and len(keyframe.intensity.points):
-            terms.append(PhotometricTerm(keyframe.intensity, keyframe.pose, frame.intensity, self._K,
+            terms.append(PhotometricTerm(keyframe.intensity, keyframe.pose, frame.intensity,
                                          self.config.photometric_std))  # fmt: skip
         return terms
 

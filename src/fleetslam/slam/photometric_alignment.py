@@ -11,11 +11,14 @@ frame's intensity there:
 
 Their Jacobian in the left perturbation of ``T_camera_world`` (the image gradient times the projection's) joins
 the same Gauss–Newton as the reprojection errors and the surface term. Both images are smoothed first, which
-widens the basin to a few pixels: the features and the motion prediction start the pose well inside it.
+widens the basin to a few pixels: the features and the motion prediction start the pose well inside it. The term
+works on the image pyramid's level nearest a 320-pixel width (:func:`pyramid_level`): at any resolution it then
+costs the same and sees edges at the same scale.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,25 +28,50 @@ from fleetslam.datasets.base import Intrinsics
 from fleetslam.slam.features import import_cv2
 
 
+def pyramid_level(width: int, target_width: int = 320) -> int:
+    """How many halvings bring an image ``width`` pixels wide nearest to ``target_width`` without going below it
+    (640 → 1, 320 → 0, 1280 → 2, 480 → 0)."""
+    return max(0, math.floor(math.log2(max(width, 1) / target_width))) if width > target_width else 0
+
+
+def level_intrinsics(intrinsics: Intrinsics, level: int) -> Intrinsics:
+    """The intrinsics of a pyramid level made by ``cv2.pyrDown`` (pixel i of a level sits on pixel 2i of the one
+    below, so the principal point halves with the focal length)."""
+    scale = 0.5**level
+    width, height = intrinsics.width, intrinsics.height
+    for _ in range(level):
+        width, height = (width + 1) // 2, (height + 1) // 2
+    return Intrinsics(intrinsics.fx * scale, intrinsics.fy * scale, intrinsics.cx * scale, intrinsics.cy * scale,
+                      width, height)  # fmt: skip
+
+
 @dataclass(frozen=True)
 class FrameIntensity:
-    """A frame's smoothed intensity and its gradients (float32, grey levels and grey levels per pixel)."""
+    """A frame's smoothed intensity and its gradients on one pyramid level (float32, grey levels and grey levels
+    per pixel of the level)."""
 
     image: NDArray[np.float32]
     gradient_u: NDArray[np.float32]
     gradient_v: NDArray[np.float32]
+    intrinsics: Intrinsics
+    """The level's intrinsics."""
+    level: int = 0
 
     @classmethod
-    def from_gray(cls, gray: NDArray[np.uint8], blur_px: float) -> FrameIntensity:
-        """Smoothed by a Gaussian of ``blur_px`` (σ, pixels); gradients by central differences (Scharr's are
-        sharper but the blur has already set the scale)."""
+    def from_gray(
+        cls, gray: NDArray[np.uint8], intrinsics: Intrinsics, blur_px: float, level: int = 0
+    ) -> FrameIntensity:
+        """Halved ``level`` times (``cv2.pyrDown``), smoothed by a Gaussian of ``blur_px`` (σ, pixels of the level);
+        gradients by central differences (Scharr's are sharper but the blur has already set the scale)."""
         cv2 = import_cv2()
         image = np.asarray(gray, np.float32)
+        for _ in range(level):
+            image = cv2.pyrDown(image)
         if blur_px > 0:
             image = cv2.GaussianBlur(image, (0, 0), blur_px)
         gradient_u = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
         gradient_v = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-        return cls(image, gradient_u, gradient_v)
+        return cls(image, gradient_u, gradient_v, level_intrinsics(intrinsics, level), level)
 
 
 @dataclass(frozen=True)
@@ -60,22 +88,25 @@ class KeyframeIntensity:
         cls,
         intensity: FrameIntensity,
         depth: NDArray[np.float32],
-        intrinsics: Intrinsics,
         block: int,
         min_gradient: float,
         min_depth: float,
         max_depth: float,
     ) -> KeyframeIntensity:
-        """The strongest gradient of every ``block`` × ``block`` pixels (DSO's selection: spread over the image,
-        not bunched on the few strongest edges) where it is at least ``min_gradient`` and the depth is valid; a
-        pixel next to a depth edge is left out (its depth may belong to the other surface)."""
+        """The strongest gradient of every ``block`` × ``block`` pixels of the level (DSO's selection: spread over
+        the image, not bunched on the few strongest edges) where it is at least ``min_gradient`` and the depth is
+        valid; a pixel next to a depth edge is left out (its depth may belong to the other surface). ``depth`` is
+        the full image's; a level's pixel takes the depth of the pixel it sits on."""
         cv2 = import_cv2()
+        intrinsics = intensity.intrinsics
         magnitude = np.hypot(intensity.gradient_u, intensity.gradient_v)
+        step = 2**intensity.level
         raw = np.nan_to_num(np.asarray(depth, np.float32), nan=0.0, posinf=0.0, neginf=0.0)
         valid = (raw > min_depth) & (raw < max_depth)
         # A depth edge: the depth changes by more than 5 % within one pixel.
         spread = cv2.dilate(raw, np.ones((3, 3), np.uint8)) - cv2.erode(raw, np.ones((3, 3), np.uint8))
-        usable = valid & (spread <= 0.05 * raw)
+        usable = (valid & (spread <= 0.05 * raw))[::step, ::step][: magnitude.shape[0], : magnitude.shape[1]]
+        raw = raw[::step, ::step][: magnitude.shape[0], : magnitude.shape[1]]
         usable[:2, :] = usable[-2:, :] = usable[:, :2] = usable[:, -2:] = False
         score = np.where(usable, magnitude, 0.0)
         h, w = score.shape
@@ -110,7 +141,7 @@ class PhotometricTerm:
     keyframe_pose: NDArray[np.float64]
     """``T_world_camera`` of the keyframe."""
     frame: FrameIntensity
-    camera_matrix: NDArray[np.float64]
+    """The frame's intensity on the same pyramid level as the keyframe's selection."""
     intensity_std: float
     """σ of one residual in grey levels: the render's or sensor's noise, and more for what the model leaves out
     (shading that changes with the view, interpolation, correlated neighbours)."""
@@ -124,8 +155,8 @@ class PhotometricTerm:
         rotation = T_camera_world[:3, :3] @ self.keyframe_pose[:3, :3]
         translation = T_camera_world[:3, :3] @ self.keyframe_pose[:3, 3] + T_camera_world[:3, 3]
         p = self.keyframe.points @ rotation.T + translation
-        k = self.camera_matrix
-        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        k = self.frame.intrinsics
+        fx, fy, cx, cy = k.fx, k.fy, k.cx, k.cy
         z = p[:, 2]
         front = z > 1e-3
         inverse_z = 1.0 / np.where(front, z, 1.0)
