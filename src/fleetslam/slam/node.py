@@ -158,6 +158,7 @@ class SlamNode:
                        "coasting_frames": 0, "keyframes": 0, "failed_frames": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
+        self._wheel_wait_ms: list[float] = []
         self._lock = threading.Lock()
         """Held while the pipeline is used (the worker's frames, the services)."""
         self._graph_published = 0.0
@@ -285,7 +286,10 @@ class SlamNode:
             pair = self.queue.take(timeout_s=0.5)
             if pair is None:
                 continue
+            waited = time.monotonic()
             self._wait_for_wheels(pair.stamp_ns / 1e9)
+            self._wheel_wait_ms.append((time.monotonic() - waited) * 1e3)
+            del self._wheel_wait_ms[:-1000]
             try:
                 with self._lock:
                     self.process(pair)
@@ -363,6 +367,8 @@ class SlamNode:
             "step_ms": round(step_ms, 2),
             "latency_ms": round(latency_ms, 2),
             "latency_ms_mean": round(float(np.mean(self._latency_ms)), 2),
+            # How long frames waited for the wheel odometry to reach their stamp (part of the latency).
+            "wheel_wait_ms_mean": round(float(np.mean(self._wheel_wait_ms)), 2) if self._wheel_wait_ms else 0.0,
             **{f"{name}_ms": round(float(ms), 2) for name, ms in timings.items() if name != "total"},
         }
         odometry = step.odometry
