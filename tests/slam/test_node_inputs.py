@@ -14,6 +14,7 @@ from fleetslam.geometry import pose_from_planar
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.conversions import transform_msg
 from fleetslam.middleware.typesys import message_from_dict, stamp_from_ns
+from fleetslam.slam.frame_queue import FramePair
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
 
 from ..support import wait_until
@@ -57,6 +58,16 @@ def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: 
     assert prior is not None
     np.testing.assert_allclose(prior, pose_from_planar(0.55, 0.0, 0.0) @ base_camera, atol=1e-9)
     assert slam.wheel_prior(5.0) is None  # long after the last wheel pose: no stale prior
+
+    # A frame the wheels have not reached yet is skipped (they are late under load, not gone): processed without
+    # its prior, a ground robot facing a blank wall would be lost instead of coasting. Once the wheels have been
+    # silent for wheels_gone_after (2 s), frames go on without them.
+    assert not slam.wheels_behind(1.55) and slam.wheels_behind(2.5) and not slam.wheels_behind(5.0)
+    info = message_from_dict("sensor_msgs/msg/CameraInfo", {"width": 320, "height": 240})
+    info.k[:] = [262.5, 0.0, 159.5, 0.0, 262.5, 119.5, 0.0, 0.0, 1.0]
+    slam.on_camera_info(info)
+    assert slam.process(FramePair(round(2.5e9), None, None, time.monotonic())) is None  # images never decoded
+    assert slam.counts["late_wheel_frames"] == 1 and slam.frames == 0
 
 
 def test_images_are_decoded_with_their_row_step_and_byte_order() -> None:

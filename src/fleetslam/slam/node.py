@@ -76,6 +76,11 @@ class SlamNodeConfig(ConfigModel):
     """Child frame of the published ``map`` → ``odom`` transform."""
     base_frame: str = "base_link"
     """Robot frame of the wheel odometry; ``tf_static`` must give base_frame → camera_frame."""
+    wheels_gone_after: float = Field(default=2.0, gt=0.0)
+    """A frame whose wheel pose has not arrived after ``odom_wait`` is skipped (counted as ``late_wheel_frames``) while
+    the newest wheel pose is less than this (s) older than the frame: the wheels are late, not gone, and a frame
+    without its prior could lose a ground robot in a blank view that the wheels would have carried it through.
+    Older than this, the wheels are taken as gone and frames are processed without them."""
     odom_tolerance: float = Field(default=0.1, gt=0.0)
     """How far (s) a camera stamp may lie outside the buffered wheel poses and still get a prior."""
     peers: list[str] = Field(default_factory=list)
@@ -155,7 +160,7 @@ class SlamNode:
         """Frames processed."""
         self.queue = FrameQueue(self.config.max_pending)
         self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
-                       "coasting_frames": 0, "keyframes": 0, "failed_frames": 0}  # fmt: skip
+                       "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
         self._wheel_wait_ms: list[float] = []
@@ -267,6 +272,13 @@ class SlamNode:
         base = self.wheel_poses.at(stamp)
         return None if base is None else base @ self.base_camera
 
+    def wheels_behind(self, stamp: float) -> bool:
+        """The wheel odometry is running but has not reached ``stamp`` (see ``wheels_gone_after``)."""
+        if not self.config.use_wheel_odometry or self.base_camera is None:
+            return False
+        newest = self.wheel_poses.newest_stamp
+        return newest is not None and 0.0 < stamp - newest < self.config.wheels_gone_after
+
     def on_rgb(self, msg: Any) -> None:
         self.queue.put_rgb(ns_from_stamp(msg.header.stamp), msg)
 
@@ -316,6 +328,9 @@ class SlamNode:
             return None
         stamp_ns = pair.stamp_ns
         prior = self.wheel_prior(stamp_ns / 1e9)
+        if prior is None and self.wheels_behind(stamp_ns / 1e9):
+            self.counts["late_wheel_frames"] += 1
+            return None
         rgb, depth = image_to_array(pair.rgb), image_to_array(pair.depth)
         if rgb.ndim != 3 or depth.shape != rgb.shape[:2]:
             raise ValueError(f"colour {rgb.shape[:2]} and depth {depth.shape} images differ in size")
