@@ -486,3 +486,12 @@ def test_keyframe_arrays_are_views_too() -> None:
         assert np.shares_memory(array, whole) and not array.flags.writeable
     np.testing.assert_allclose(back.keypoints, 0.5)
     assert back.word_ids.tolist() == [1, 2, 3]
+
+
+def test_trailing_bytes_beyond_padding_are_malformed() -> None:
+    payload = ts.serialize(ts.get_type("std_msgs/msg/String")(data="hi"), "std_msgs/msg/String")
+    assert ts.deserialize(payload + b"\x00" * 3, "std_msgs/msg/String").data == "hi"  # CDR's end padding
+    with pytest.raises(MessageError, match="malformed CDR payload"):
+        ts.deserialize(payload + b"\x00" * 8, "std_msgs/msg/String")
+    with pytest.raises(MessageError, match="unknown message type"):
+        ts.deserialize(payload, "std_msgs/msg/Strng")
