@@ -2,14 +2,22 @@
 
 Prints one JSON line. For each payload (1 MB sensor_msgs/Image, 64-byte std_msgs/String) and each peer:
 - throughput: a publisher process sends as fast as it can (reliable, blocking when congested) for a few
-  seconds; the subscriber in this process counts what it receives in the steady middle of the run;
+  seconds; the subscriber in this process counts what it receives in the steady middle of the run; both ends'
+  CPU time per message (``pub_cpu_us_per_msg``, ``sub_cpu_us_per_msg``; the subscriber's includes the router,
+  which runs in this process for every peer alike);
 - latency: the publisher sends at a fixed rate, stamping the send time before serialization; the subscriber
   records receive − send (same machine, same clock), p50 and p99.
-rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy), because
-its pip wheels re-execute the interpreter at import. Targets: 1 MB ≥ 0.8× raw Zenoh and ≥ 5× rclpy;
-64 B ≥ 0.5× raw Zenoh and ≥ 10× rclpy.
+Peers: ``fleetslam`` (callbacks on the node's executor, the default), ``fleetslam_inline`` (``inline=True``:
+callbacks on Zenoh's thread), raw ``zenoh`` (the same CDR bytes, an 8-byte attachment, one copy out of Zenoh)
+and rclpy. rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy),
+because its pip wheels re-execute the interpreter at import. Targets, fleetslam (executor) against raw Zenoh in
+the same run: 1 MB throughput ≥ 0.8× and p50 latency ≤ 1.5×; 64 B throughput ≥ 0.5×; and ≥ 5× / ≥ 10× rclpy.
 
-    python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy]
+``kinect``: a 640×480 rgb8 Image at 30 Hz and a 640×480 16UC1 depth Image at 30 Hz, each end's CPU % of one core
+for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetslam's layers cost at each end
+(serialization, attachment, statistics, hand-off, deserialization; the subscriber reads every image as an array).
+
+    python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy] [--payloads image_1mb,string_64b,kinect]
 """
 
 from __future__ import annotations
@@ -31,6 +39,10 @@ from typing import Any
 import numpy as np
 
 PAYLOADS = {"image_1mb": 1 << 20, "string_64b": 64}
+KINECT = {"rgb": ("rgb8", 3, np.uint8), "depth": ("16UC1", 1, np.uint16)}
+"""The Kinect pair: topic /bench/kinect/<name> → (encoding, channels, dtype), 640×480 at 30 Hz each."""
+KINECT_SIZE, KINECT_RATE = (640, 480), 30.0
+IMPLS = ("fleetslam", "fleetslam_inline", "zenoh")
 RCLPY_VENV = Path.home() / ".cache" / "fleetslam" / "bench-rclpy"
 RCLPY_PACKAGES = ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-rmw-fastrtps-cpp"]
 
@@ -54,34 +66,53 @@ def make_message(kind: str) -> tuple[str, Any]:
             step=width * 4, data=data,
         )  # fmt: skip
         return "sensor_msgs/msg/Image", msg
+    if kind.startswith("kinect/"):
+        encoding, channels, dtype = KINECT[kind.split("/")[1]]
+        width, height = KINECT_SIZE
+        pixels = np.random.default_rng(0).integers(0, 255, (height, width, channels)).astype(dtype)
+        msg = get_type("sensor_msgs/msg/Image")(
+            header=header("camera", 0), height=height, width=width, encoding=encoding, is_bigendian=0,
+            step=width * channels * pixels.itemsize, data=pixels.reshape(-1).view(np.uint8),
+        )  # fmt: skip
+        return "sensor_msgs/msg/Image", msg
     string = get_type("std_msgs/msg/String")
     return "std_msgs/msg/String", string(data="x" * (PAYLOADS[kind] - 8))
 
 
 # -- publisher roles (run as subprocesses of this script) ------------------------------------------------------
-def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
-    from fleetslam.middleware.typesys import serialize
+def topics_of(kind: str) -> list[str]:
+    """The payload kinds one run publishes: one, or the Kinect pair."""
+    return [f"kinect/{name}" for name in KINECT] if kind == "kinect" else [kind]
 
-    type_name, msg = make_message(kind)
-    topic = f"/bench/{kind}"
-    deadline = time.monotonic() + duration
-    period = 1.0 / rate if mode == "latency" else 0.0
-    next_time = time.monotonic()
-    if impl == "fleetslam":
+
+def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
+    """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop."""
+    from fleetslam.middleware.typesys import serialize, serialize_buffer
+
+    messages = [(f"/bench/{k}", *make_message(k)) for k in topics_of(kind)]
+    period = 1.0 / rate if mode in ("latency", "kinect") else 0.0
+    sent = 0
+    if impl.startswith("fleetslam"):
         from fleetslam.middleware import Context, Node, QoSProfile
 
         with Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False) as ctx:
             node = Node("bench_pub", context=ctx, statistics_period_s=0)
             qos = QoSProfile(history="keep_all") if mode == "throughput" else QoSProfile(depth=100)
-            publisher = node.create_publisher(type_name, topic, qos)
+            publishers = [(node.create_publisher(t, topic, qos), t, msg) for topic, t, msg in messages]
             time.sleep(1.0)
+            cpu0, wall0 = time.process_time(), time.monotonic()
+            deadline, next_time = wall0 + duration, wall0
             while time.monotonic() < deadline:
-                t0 = time.time_ns()
-                publisher.publish_raw(serialize(msg, type_name), source_timestamp_ns=t0)
+                for publisher, type_name, msg in publishers:
+                    t0 = time.time_ns()  # stamped before serialization: the latency includes it
+                    publisher.publish_raw(serialize_buffer(msg, type_name), source_timestamp_ns=t0)
+                    sent += 1
                 if period:
                     next_time += period
                     time.sleep(max(0.0, next_time - time.monotonic()))
+            cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
             time.sleep(0.5)
+        print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
         return
     import zenoh
 
@@ -91,19 +122,26 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
     config.insert_json5("connect/endpoints", json.dumps([endpoint]))
     config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     config.insert_json5("scouting/multicast/enabled", "false")
-    key = topic_key(0, topic, type_name)
     with zenoh.open(config) as session:
         congestion = zenoh.CongestionControl.BLOCK if mode == "throughput" else zenoh.CongestionControl.DROP
-        publisher = session.declare_publisher(key, congestion_control=congestion)
+        # Raw Zenoh carries the same CDR bytes (serialized once); the send time travels in an 8-byte attachment.
+        puts = [
+            (session.declare_publisher(topic_key(0, topic, t), congestion_control=congestion), serialize(msg, t))
+            for topic, t, msg in messages
+        ]
         time.sleep(1.0)
-        # Raw Zenoh carries the same CDR bytes; the send time travels in an 8-byte attachment.
-        payload = serialize(msg, type_name)
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        deadline, next_time = wall0 + duration, wall0
         while time.monotonic() < deadline:
-            publisher.put(payload, attachment=struct.pack("<q", time.time_ns()))
+            for publisher, payload in puts:
+                publisher.put(payload, attachment=struct.pack("<q", time.time_ns()))
+                sent += 1
             if period:
                 next_time += period
                 time.sleep(max(0.0, next_time - time.monotonic()))
+        cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
         time.sleep(0.5)
+    print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
 
 
 # -- subscriber side (this process) -----------------------------------------------------------------------------
@@ -112,6 +150,10 @@ class Receiver:
         self.times: list[float] = []
         self.latencies_ns: list[int] = []
         self.lock = threading.Lock()
+        self.sub_cpu_s = 0.0
+        """This process's CPU time while the publisher ran (subscriber and router)."""
+        self.publisher: dict[str, Any] = {}
+        """The publisher's line: sent, cpu_s, wall_s of its sending loop."""
 
     def record(self, send_ns: int) -> None:
         now = time.time_ns()
@@ -131,22 +173,26 @@ def steady_rate(times: list[float]) -> float:
 
 def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: float) -> Receiver:
     from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile, Router
-    from fleetslam.middleware.typesys import get_type, serialize
     from fleetslam.middleware.wire import topic_key
 
-    type_name, _ = make_message(kind)
-    get_type(type_name)
+    kinds = topics_of(kind)
+    type_name, _ = make_message(kinds[0])
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     receiver = Receiver()
     with Router([endpoint]):
-        if impl == "fleetslam":
+        if impl.startswith("fleetslam"):
             ctx = Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False)
             node = Node("bench_sub", context=ctx, statistics_period_s=0)
 
             def on_message(msg: Any, info: MessageInfo) -> None:
+                if kind == "kinect":  # the image as an array, as a consumer reads it (a view, no copy)
+                    np.asarray(msg.data).reshape(msg.height, msg.width, -1)
                 receiver.record(info.source_timestamp_ns)
 
-            node.create_subscription(type_name, f"/bench/{kind}", on_message, QoSProfile(depth=1000))
+            for k in kinds:
+                node.create_subscription(
+                    type_name, f"/bench/{k}", on_message, QoSProfile(depth=1000), inline=impl == "fleetslam_inline"
+                )
             closer: Any = ctx
         else:
             import zenoh
@@ -159,19 +205,26 @@ def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: f
 
             def on_sample(sample: Any) -> None:
                 payload = sample.payload.to_bytes()  # the same copy out of Zenoh that fleetslam makes
+                if kind == "kinect":
+                    np.frombuffer(payload, np.uint8)
                 del payload
                 receiver.record(struct.unpack("<q", sample.attachment.to_bytes())[0])
 
-            session.declare_subscriber(topic_key(0, f"/bench/{kind}", type_name), on_sample)
+            for k in kinds:
+                session.declare_subscriber(topic_key(0, f"/bench/{k}", type_name), on_sample)
             closer = session
-        del serialize
+        cpu0 = time.process_time()
         proc = subprocess.Popen(
             [sys.executable, __file__, "--role", "pub", "--impl", impl, "--kind", kind, "--endpoint", endpoint,
              "--mode", mode, "--duration", str(duration), "--rate", str(rate)],
+            stdout=subprocess.PIPE, text=True,
         )  # fmt: skip
-        proc.wait(timeout=duration + 30)
+        out, _ = proc.communicate(timeout=duration + 30)
         time.sleep(0.3)
+        receiver.sub_cpu_s = time.process_time() - cpu0
         closer.close()
+    lines = out.strip().splitlines()
+    receiver.publisher = json.loads(lines[-1]) if lines else {}
     return receiver
 
 
@@ -281,12 +334,54 @@ def measure_rclpy(python: Path, kind: str, mode: str, duration: float, rate: flo
 # -- main -------------------------------------------------------------------------------------------------------
 def summarize(throughput: Receiver, latency: Receiver) -> dict[str, Any]:
     lat_ms = np.asarray(latency.latencies_ns, dtype=np.float64) / 1e6
+    received = len(throughput.times)
+    sent = throughput.publisher.get("sent", 0)
     return {
         "msgs_per_s": round(steady_rate(throughput.times), 1),
         "latency_p50_ms": round(float(np.percentile(lat_ms, 50)), 3) if lat_ms.size else None,
         "latency_p99_ms": round(float(np.percentile(lat_ms, 99)), 3) if lat_ms.size else None,
         "latency_samples": int(lat_ms.size),
+        "pub_cpu_us_per_msg": round(throughput.publisher["cpu_s"] / sent * 1e6, 2) if sent else None,
+        "sub_cpu_us_per_msg": (
+            round(throughput.sub_cpu_s / received * 1e6, 2) if received and throughput.publisher else None
+        ),
     }
+
+
+def measure_kinect(impls: tuple[str, ...], duration: float) -> dict[str, Any]:
+    """Each end's CPU % of one core for the Kinect pair; fleetslam's layers = fleetslam − raw Zenoh."""
+    entry: dict[str, Any] = {"streams": "640x480 rgb8 30 Hz + 640x480 16UC1 30 Hz"}
+    for impl in impls:
+        print(f"[bench] kinect {impl} ...", file=sys.stderr, flush=True)
+        r = measure_in_process(impl, "kinect", "kinect", duration, KINECT_RATE)
+        wall = r.publisher.get("wall_s") or duration
+        entry[impl] = {
+            "received_per_s": round(len(r.times) / wall, 1),
+            "pub_cpu_pct": round(100 * r.publisher.get("cpu_s", 0.0) / wall, 2),
+            "sub_cpu_pct": round(100 * r.sub_cpu_s / wall, 2),  # the subscriber and the router
+        }
+    for impl in impls:
+        if impl.startswith("fleetslam") and "zenoh" in entry:
+            entry[impl]["layers_cpu_pct"] = {
+                end: round(entry[impl][f"{end}_cpu_pct"] - entry["zenoh"][f"{end}_cpu_pct"], 2)
+                for end in ("pub", "sub")
+            }
+    return entry
+
+
+def check_targets(kind: str, entry: dict[str, Any], impl: str = "fleetslam") -> dict[str, Any]:
+    """The issue's targets, a fleetslam peer against raw Zenoh in this run; notes the p50 latency ratio."""
+    ours, zen = entry[impl], entry["zenoh"]
+    ratio = ours["msgs_per_s"] / zen["msgs_per_s"] if zen["msgs_per_s"] else None
+    want = 0.8 if kind == "image_1mb" else 0.5
+    met = {"throughput_vs_zenoh": ratio is not None and ratio >= want}
+    slower = (
+        ours["latency_p50_ms"] / zen["latency_p50_ms"] if ours["latency_p50_ms"] and zen["latency_p50_ms"] else None
+    )
+    ours["latency_p50_vs_zenoh"] = round(slower, 2) if slower is not None else None
+    if kind == "image_1mb":
+        met["latency_p50_vs_zenoh"] = slower is not None and slower <= 1.5
+    return met
 
 
 def main() -> None:
@@ -299,6 +394,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=3.0)
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--no-rclpy", action="store_true", help="skip the rclpy peer")
+    parser.add_argument(
+        "--payloads", default="image_1mb,string_64b,kinect", help="comma-separated subset of the default"
+    )
     args = parser.parse_args()
     if args.role == "pub":
         run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate)
@@ -309,11 +407,12 @@ def main() -> None:
         "machine": f"{platform.machine()} {os.cpu_count()} cores",
         "duration_s": args.duration,
     }
+    wanted = [k.strip() for k in args.payloads.split(",") if k.strip()]
     rclpy_python, rclpy_reason = (None, "skipped (--no-rclpy)") if args.no_rclpy else ensure_rclpy_venv()
-    for kind in PAYLOADS:
+    for kind in (k for k in PAYLOADS if k in wanted):
         rate = 50.0 if kind == "image_1mb" else 200.0
         entry: dict[str, Any] = {}
-        for impl in ("fleetslam", "zenoh"):
+        for impl in IMPLS:
             print(f"[bench] {kind} {impl} ...", file=sys.stderr, flush=True)
             entry[impl] = summarize(
                 measure_in_process(impl, kind, "throughput", args.duration, rate),
@@ -331,11 +430,20 @@ def main() -> None:
         entry["ratio_vs_zenoh"] = (
             round(ours / entry["zenoh"]["msgs_per_s"], 3) if entry["zenoh"]["msgs_per_s"] else None
         )
+        entry["inline_ratio_vs_zenoh"] = (
+            round(entry["fleetslam_inline"]["msgs_per_s"] / entry["zenoh"]["msgs_per_s"], 3)
+            if entry["zenoh"]["msgs_per_s"]
+            else None
+        )
         rclpy_rate = entry["rclpy"].get("msgs_per_s")
         entry["ratio_vs_rclpy"] = round(ours / rclpy_rate, 2) if rclpy_rate else None
         target_zenoh, target_rclpy = (0.8, 5.0) if kind == "image_1mb" else (0.5, 10.0)
         entry["targets"] = {"vs_zenoh": target_zenoh, "vs_rclpy": target_rclpy}
+        entry["targets_met"] = check_targets(kind, entry)
+        entry["inline_targets_met"] = check_targets(kind, entry, "fleetslam_inline")
         results[kind] = entry
+    if "kinect" in wanted:
+        results["kinect"] = measure_kinect(IMPLS, args.duration)
     print(json.dumps(results))
 
 

@@ -6,6 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -13,7 +14,7 @@ import zenoh
 from fleetslam.config import ConfigModel
 from fleetslam.errors import ConfigError, MessageError, MiddlewareError, ServiceError
 from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, serialize, stamp_from_ns
+from fleetslam.middleware.typesys import get_type, header, serialize, stamp_from_ns
 from fleetslam.middleware.wire import LivelinessToken, decode_attachment, encode_attachment, gid_from_key
 
 from ..support import wait_until
@@ -358,3 +359,84 @@ def test_callbacks_with_defaulted_parameters_get_only_the_message(make_context: 
     time.sleep(0.3)
     talker.create_publisher("std_msgs/msg/String", "chatter").publish(String(data="hi"))
     assert wait_until(lambda: got == [("first", "hi")])
+
+
+def test_inline_subscription_runs_on_zenoh_thread_and_keeps_views_valid(
+    make_context: Callable[..., Context],
+) -> None:
+    import numpy as np
+
+    talker = Node("talker", context=make_context("c3po"), statistics_period_s=0)
+    listener = Node("listener", context=make_context("r2d2"), statistics_period_s=0)
+    kept: list[tuple[Any, MessageInfo, str]] = []
+    executor_threads: list[str] = []
+
+    def on_image(msg: Any, info: MessageInfo) -> None:
+        kept.append((msg, info, threading.current_thread().name))  # kept past the callback, arrays and all
+
+    sub = listener.create_subscription("sensor_msgs/msg/Image", "/c3po/image", on_image, inline=True)
+    listener.call_soon(lambda: executor_threads.append(threading.current_thread().name))
+    pub = talker.create_publisher("sensor_msgs/msg/Image", "image")
+    assert wait_until(lambda: pub.matched_subscriptions == 1 and bool(executor_threads))
+    release = threading.Event()
+    listener.call_soon(release.wait)  # the executor is blocked: inline callbacks do not wait for it
+    image_type = get_type("sensor_msgs/msg/Image")
+    frames = [np.full(64 * 48 * 3, i, dtype=np.uint8) for i in range(5)]
+    for frame in frames:
+        pub.publish(
+            image_type(
+                header=header("cam", 1), height=48, width=64, encoding="rgb8", is_bigendian=0, step=192, data=frame
+            )
+        )
+    assert wait_until(lambda: len(kept) == 5)
+    assert all(name != executor_threads[0] for _, _, name in kept)  # not the node's executor: Zenoh's thread
+    for (msg, _, _), frame in zip(kept, frames, strict=True):
+        np.testing.assert_array_equal(msg.data, frame)  # every view still holds its own sample's pixels
+        assert not msg.data.flags.writeable
+    assert [i.sequence_number for _, i, _ in kept] == [1, 2, 3, 4, 5]
+    assert sub.statistics.total_delivered == 5 and sub.queue_overflows == 0
+    release.set()
+
+
+def test_inline_callback_errors_are_counted_not_raised(make_context: Callable[..., Context]) -> None:
+    node = Node("solo", context=make_context(), statistics_period_s=0)
+    seen: list[str] = []
+
+    def fails(msg: Any) -> None:
+        seen.append(msg.data)
+        raise RuntimeError("boom")
+
+    sub = node.create_subscription("std_msgs/msg/String", "/chatter", fails, inline=True)
+    pub = node.create_publisher("std_msgs/msg/String", "/chatter")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    pub.publish(String(data="a"))
+    pub.publish(String(data="b"))
+    assert wait_until(lambda: seen == ["a", "b"] and sub.statistics.total_errors == 2)
+
+
+def test_large_payloads_leave_zenoh_on_the_executor_and_stay_valid(make_context: Callable[..., Context]) -> None:
+    import numpy as np
+
+    talker = Node("talker", context=make_context(), statistics_period_s=0)
+    node = Node("slow", context=make_context(), statistics_period_s=0)
+    kept: list[Any] = []
+    release = threading.Event()
+    node.call_soon(release.wait)  # samples wait in the KEEP_LAST queue, still inside Zenoh's buffers
+    sub = node.create_subscription("sensor_msgs/msg/Image", "/image", kept.append, QoSProfile(depth=3))
+    pub = talker.create_publisher("sensor_msgs/msg/Image", "/image")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    time.sleep(0.1)
+    image_type = get_type("sensor_msgs/msg/Image")
+    frames = [np.full(320 * 240 * 3, i, dtype=np.uint8) for i in range(6)]  # 230 KB each: over the 64 KiB cut
+    for frame in frames:
+        pub.publish(
+            image_type(header=header("cam", 1), height=240, width=320, encoding="rgb8", is_bigendian=0, step=960,
+                       data=frame)
+        )  # fmt: skip
+    assert wait_until(lambda: sub.statistics.total_delivered == 6)
+    release.set()
+    assert wait_until(lambda: len(kept) == 3)
+    assert sub.queue_overflows == 3
+    for msg, frame in zip(kept, frames[3:], strict=True):
+        assert isinstance(msg.data, np.ndarray) and not msg.data.flags.writeable
+        np.testing.assert_array_equal(msg.data, frame)

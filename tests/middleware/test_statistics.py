@@ -167,3 +167,33 @@ def test_a_flood_of_forged_gids_leaves_statistics_bounded_and_the_node_deliverin
         time.sleep(0.02)
     assert wait_until(lambda: len(received) - before == 20, 5.0)
     assert wait_until(lambda: any(bytes(r.publisher_gid) == GID_A for r in reports), 5.0)
+
+
+def test_interleaved_publishers_keep_their_own_periods_and_ages() -> None:
+    # The fast path remembers the previous sample's publisher: alternating GIDs must still be kept apart.
+    acc = SubscriptionStatistics(now_ns=0)
+    for i in range(10):
+        t = 1_000_000 * (i + 1)
+        acc.on_sample(GID_A, i + 1, source_ns=t - 1000, receive_ns=t, size=10)  # A: every 1 ms, 1 µs old
+        if i % 2 == 0:
+            acc.on_sample(GID_B, i // 2 + 1, source_ns=t - 3000, receive_ns=t + 10, size=20)  # B: 2 ms, 3 µs
+    reports = {r.publisher_gid: r for r in acc.close_window(now_ns=10**9)}
+    a, b = reports[GID_A], reports[GID_B]
+    assert (a.delivered, a.dropped, a.traffic_bytes) == (10, 0, 100)
+    assert (b.delivered, b.dropped, b.traffic_bytes) == (5, 0, 100)
+    assert a.period_mean_ns == 1_000_000 and a.period_stddev_ns == 0 and a.age_mean_ns == 1000
+    assert b.period_mean_ns == 2_000_000 and b.period_max_ns == 2_000_000 and b.age_mean_ns == 3010
+
+
+def test_one_publisher_table_evicts_the_previous_publisher_into_others() -> None:
+    acc = SubscriptionStatistics(now_ns=0, max_publishers=1)
+    acc.on_sample(GID_A, 1, source_ns=0, receive_ns=10, size=1)
+    acc.on_sample(GID_A, 3, source_ns=0, receive_ns=20, size=1)
+    acc.on_sample(GID_B, 1, source_ns=0, receive_ns=30, size=2)  # evicts A, whose counts go to "others"
+    acc.on_sample(GID_A, 4, source_ns=0, receive_ns=40, size=4)  # A again: new, its old sequence forgotten
+    reports = {r.publisher_gid: r for r in acc.close_window(now_ns=100)}
+    assert set(reports) == {GID_A, bytes(16)} and acc.evicted == 2
+    assert (reports[GID_A].delivered, reports[GID_A].dropped, reports[GID_A].traffic_bytes) == (1, 0, 4)
+    others = reports[bytes(16)]
+    assert (others.delivered, others.dropped, others.traffic_bytes) == (3, 1, 4)  # A's 2 (1 gap) and B's 1
+    assert acc.total_delivered == 4 and acc.total_dropped == 1

@@ -427,3 +427,71 @@ def test_octomap_msgs_types_for_octomap_server_tools() -> None:
         "octomap_msgs/srv/GetOctomap_Request",
         "octomap_msgs/srv/GetOctomap_Response",
     )
+
+
+def test_deserialized_arrays_are_read_only_views_on_the_payload() -> None:
+    image_type = ts.get_type("sensor_msgs/msg/Image")
+    pixels = np.arange(480 * 640 * 3, dtype=np.uint32).astype(np.uint8)
+    payload = ts.serialize(
+        image_type(
+            header=ts.header("cam", 5), height=480, width=640, encoding="rgb8", is_bigendian=0, step=1920, data=pixels
+        ),
+        "sensor_msgs/msg/Image",
+    )
+    msg = ts.deserialize(payload, "sensor_msgs/msg/Image")
+    # No copy: the array's memory is inside the payload, at the data's offset after the CDR header.
+    start = np.frombuffer(payload, np.uint8).ctypes.data
+    assert start < msg.data.ctypes.data < start + len(payload)
+    assert np.shares_memory(msg.data, np.frombuffer(payload, np.uint8))
+    np.testing.assert_array_equal(msg.data, pixels)
+    # Read-only, so nobody changes what another callback of the same sample sees; a copy is one's own.
+    assert not msg.data.flags.writeable
+    with pytest.raises(ValueError):
+        msg.data[0] = 1
+    mine = msg.data.copy()
+    mine[0] = 1
+    assert mine.flags.writeable and msg.data[0] == pixels[0]
+    # The view keeps the payload alive after every other reference is gone.
+    view = msg.data
+    del msg, payload
+    np.testing.assert_array_equal(view, pixels)
+
+
+def test_deserialize_copies_mutable_buffers_first() -> None:
+    array = ts.message_from_dict("std_msgs/msg/UInt8MultiArray", {"data": list(range(8))})
+    payload = bytearray(ts.serialize(array, "std_msgs/msg/UInt8MultiArray"))
+    msg = ts.deserialize(payload, "std_msgs/msg/UInt8MultiArray")
+    payload[-1] = 99  # the caller changes its buffer: the message does not change with it
+    assert msg.data.tolist() == list(range(8))
+    view = ts.deserialize(memoryview(bytes(payload)), "std_msgs/msg/UInt8MultiArray")
+    assert view.data[-1] == 99
+
+
+def test_serialize_buffer_is_serialize_without_the_copy() -> None:
+    msg = ts.get_type("std_msgs/msg/String")(data="hi")
+    buffer = ts.serialize_buffer(msg, "std_msgs/msg/String")
+    assert isinstance(buffer, bytearray) and bytes(buffer) == ts.serialize(msg, "std_msgs/msg/String")
+    assert ts.serialize_buffer(msg, "std_msgs/msg/String") is not buffer  # a new buffer each time, the caller's own
+
+
+def test_keyframe_arrays_are_views_too() -> None:
+    msg = ts.message_from_dict(
+        "fleetslam_msgs/msg/Keyframe",
+        {"agent": "c3po", "rgb": list(range(100)), "keypoints": [0.5] * 64, "word_ids": [1, 2, 3]},
+    )
+    payload = ts.serialize(msg, "fleetslam_msgs/msg/Keyframe")
+    back = ts.deserialize(payload, "fleetslam_msgs/msg/Keyframe")
+    whole = np.frombuffer(payload, np.uint8)
+    for array in (back.rgb, back.keypoints, back.word_ids, back.camera_info.k):
+        assert np.shares_memory(array, whole) and not array.flags.writeable
+    np.testing.assert_allclose(back.keypoints, 0.5)
+    assert back.word_ids.tolist() == [1, 2, 3]
+
+
+def test_trailing_bytes_beyond_padding_are_malformed() -> None:
+    payload = ts.serialize(ts.get_type("std_msgs/msg/String")(data="hi"), "std_msgs/msg/String")
+    assert ts.deserialize(payload + b"\x00" * 3, "std_msgs/msg/String").data == "hi"  # CDR's end padding
+    with pytest.raises(MessageError, match="malformed CDR payload"):
+        ts.deserialize(payload + b"\x00" * 8, "std_msgs/msg/String")
+    with pytest.raises(MessageError, match="unknown message type"):
+        ts.deserialize(payload, "std_msgs/msg/Strng")

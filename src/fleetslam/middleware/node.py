@@ -8,6 +8,10 @@ Threading:
 - samples are received, checked and counted in the statistics on Zenoh's threads, and queued per subscription
   (KEEP_LAST depth: the oldest is dropped when the executor falls behind; KEEP_ALL: unbounded). They are
   deserialized on the executor just before their callback, so samples dropped by KEEP_LAST cost no decoding.
+  A subscription created with ``inline=True`` skips the queue: its callback runs on Zenoh's thread (see
+  :class:`Subscription`).
+- zero-copy: a received payload is copied once out of Zenoh; the message's numeric arrays are read-only NumPy
+  views on that copy (they keep it alive). Publishing serializes into the buffer handed to Zenoh.
 - service requests are decoded on Zenoh's threads; the handler runs on the executor and the reply is sent from
   there.
 - each timer has a small thread that only posts ticks; a tick is skipped while the previous one still waits.
@@ -87,6 +91,9 @@ class MessageInfo(NamedTuple):
 
 
 _ATTACHMENT = struct.Struct("<qqB")
+_ATTACHMENT_GID = struct.Struct("<qqB16s")
+_COPY_ON_EXECUTOR_BYTES = 1 << 16
+"""Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
 
 
 class _RateLimitedLogger:
@@ -226,11 +233,16 @@ class Publisher(_Entity):
         return self.name
 
     def publish(self, msg: object) -> None:
-        """Serialize (CDR) and publish a message; ``bytes`` are taken as already serialized CDR (with header)."""
-        if isinstance(msg, bytes | bytearray | memoryview):
+        """Serialize (CDR) and publish a message; ``bytes`` are taken as already serialized CDR (with header).
+
+        The message is serialized straight into the buffer handed to Zenoh (one copy of its arrays, none more).
+        """
+        if isinstance(msg, bytes | bytearray):
+            self.publish_raw(msg)
+        elif isinstance(msg, memoryview):
             self.publish_raw(bytes(msg))
         else:
-            self.publish_raw(typesys.serialize(msg, self.type_name))
+            self.publish_raw(typesys.serialize_buffer(msg, self.type_name))
 
     @property
     def matched_subscriptions(self) -> int:
@@ -244,7 +256,11 @@ class Publisher(_Entity):
         with self._lock:
             seq = next(self._sequence)
         stamp = time.time_ns() if source_timestamp_ns is None else source_timestamp_ns
-        self._publisher.put(payload, attachment=encode_attachment(seq, stamp, self.gid))
+        try:
+            attachment = _ATTACHMENT_GID.pack(seq, stamp, 16, self.gid)  # encode_attachment's bytes, in one call
+        except struct.error:
+            attachment = encode_attachment(seq, stamp, self.gid)  # raises MessageError naming the value
+        self._publisher.put(payload, attachment=attachment)
 
     def _undeclare(self) -> None:
         try:
@@ -276,6 +292,15 @@ class Subscription(_Entity):
 
     ``type_name=None`` subscribes to any type (the type is read from each sample's key); with ``raw=True`` the
     callback gets the CDR bytes instead of a message (for recorders and bridges).
+
+    With ``inline=True`` the callback runs directly on Zenoh's receive thread, with no queue and no hand-off to
+    the executor (the lowest latency and cost per message). Such a callback runs concurrently with the node's
+    executor callbacks, so what it shares with them needs a lock, and it must return quickly: Zenoh delivers
+    the next sample only after it. There is no local queue (no KEEP_LAST drops here, ``queue_overflows`` stays
+    0); a slow callback holds back reception instead.
+
+    A message's numeric arrays are read-only views on the received payload (see :func:`typesys.deserialize`):
+    keeping the message, or any of its arrays, keeps the payload alive; copy an array to modify it.
     """
 
     def __init__(
@@ -288,6 +313,7 @@ class Subscription(_Entity):
         *,
         raw: bool = False,
         max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES,
+        inline: bool = False,
     ) -> None:
         self.any_type = type_name is None
         if type_name is not None:
@@ -297,6 +323,7 @@ class Subscription(_Entity):
         self.callback = callback
         self.raw = raw
         self.max_payload_bytes = max_payload_bytes
+        self.inline = inline
         self._with_info = _accepts_info(callback)
         self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
             maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
@@ -402,7 +429,13 @@ class Subscription(_Entity):
             types[gid] = type_name
         self.statistics.on_sample(gid, seq, stamp, received, size)
         info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
-        payload = zpayload.to_bytes()
+        if self.inline:
+            self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
+            return
+        # A large payload leaves Zenoh on the executor, where its copy is also freed: a buffer made on one thread
+        # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
+        # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
+        payload: bytes | zenoh.ZBytes = zpayload if size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
         with self._pending_lock:
             full = len(self._pending) == self._pending.maxlen
             self._pending.append((payload, info))  # drops the oldest when full; its post serves this one
@@ -416,6 +449,11 @@ class Subscription(_Entity):
             if not self._pending:
                 return
             payload, info = self._pending.popleft()
+        self._deliver(payload, info)
+
+    def _deliver(self, payload: bytes | zenoh.ZBytes, info: MessageInfo) -> None:
+        if not isinstance(payload, bytes):
+            payload = payload.to_bytes()
         message: Any = payload
         if not self.raw:
             try:
@@ -722,8 +760,13 @@ class Node:
         *,
         raw: bool = False,
         max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES,
+        inline: bool = False,
     ) -> Subscription:
-        """Subscribe; ``callback(msg)`` or ``callback(msg, info: MessageInfo)`` runs on the executor."""
+        """Subscribe; ``callback(msg)`` or ``callback(msg, info: MessageInfo)`` runs on the executor.
+
+        ``inline=True`` runs it on Zenoh's receive thread instead (no queue, no hand-off; see :class:`Subscription`
+        for what that asks of the callback).
+        """
         if type_name is not None:
             typesys.get_type(type_name)
         subscription: Subscription = self._add(
@@ -735,6 +778,7 @@ class Node:
                 qos or QoSProfile(),
                 raw=raw,
                 max_payload_bytes=max_payload_bytes,
+                inline=inline,
             )
         )
         self._subscriptions.append(subscription)

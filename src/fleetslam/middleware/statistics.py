@@ -2,7 +2,8 @@
 
 For every received sample the subscription records its size, the gap in the publisher's sequence numbers
 (dropped messages), the period since the publisher's previous sample, and the age (receive time minus the
-attachment's source timestamp). Each update is O(1): a dictionary lookup and a few float operations.
+attachment's source timestamp). Each update is O(1) and creates no container: one lock, a comparison with the
+previous sample's publisher (else a dictionary lookup) and Welford's update of two running statistics.
 Pure and thread-safe; no Zenoh here (the subscription feeds it, the node publishes its reports).
 
 Bounded: the publisher GID comes from the sample's attachment, which anyone can forge, so at most
@@ -30,6 +31,7 @@ class RunningStats:
     maximum: float = 0.0
 
     def add(self, value: float) -> None:
+        # SubscriptionStatistics.on_sample inlines this update; keep the two the same.
         self.count += 1
         delta = value - self.mean
         self.mean += delta / self.count
@@ -110,6 +112,9 @@ class SubscriptionStatistics:
         self._publishers: OrderedDict[bytes, _PublisherState] = OrderedDict()
         """Least recently heard first."""
         self._others = _PublisherState()
+        self._last_gid = _NO_GID
+        self._last_state = self._others
+        """The publisher of the previous sample: most samples come from it, and it is already the most recent."""
         self.total_delivered = 0
         self.total_dropped = 0
         self.total_errors = 0
@@ -123,6 +128,8 @@ class SubscriptionStatistics:
             return len(self._publishers)
 
     def _state(self, gid: bytes) -> _PublisherState:
+        if gid == self._last_gid:
+            return self._last_state
         if gid == _NO_GID:
             return self._others
         state = self._publishers.get(gid)
@@ -134,6 +141,7 @@ class SubscriptionStatistics:
             state = self._publishers[gid] = _PublisherState()
         else:
             self._publishers.move_to_end(gid)
+        self._last_gid, self._last_state = gid, state
         return state
 
     def on_sample(self, gid: bytes, sequence_number: int, source_ns: int, receive_ns: int, size: int) -> None:
@@ -151,10 +159,25 @@ class SubscriptionStatistics:
                     window.dropped += gap
                     self.total_dropped += gap
                 state.last_seq = sequence_number
-            if state.last_receive is not None:
-                window.period.add(receive_ns - state.last_receive)
+            last_receive = state.last_receive
+            if last_receive is not None:  # RunningStats.add, inlined (the hot path of every sample)
+                stats = window.period
+                value = receive_ns - last_receive
+                n = stats.count = stats.count + 1
+                delta = value - stats.mean
+                stats.mean += delta / n
+                stats._m2 += delta * (value - stats.mean)
+                if value > stats.maximum or n == 1:
+                    stats.maximum = value
             state.last_receive = receive_ns
-            window.age.add(receive_ns - source_ns)
+            stats = window.age
+            value = receive_ns - source_ns
+            n = stats.count = stats.count + 1
+            delta = value - stats.mean
+            stats.mean += delta / n
+            stats._m2 += delta * (value - stats.mean)
+            if value > stats.maximum or n == 1:
+                stats.maximum = value
 
     def on_error(self, gid: bytes | None, size: int = 0) -> None:
         """Record a sample that was dropped as malformed, oversized or unprocessable."""
