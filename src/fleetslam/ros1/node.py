@@ -30,7 +30,7 @@ import time
 import xmlrpc.client
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 from urllib.parse import urlparse
 from xmlrpc.server import SimpleXMLRPCRequestHandler, SimpleXMLRPCServer
 
@@ -39,6 +39,8 @@ from fleetslam.ros1 import tcpros
 from fleetslam.ros1.messages import Ros1ServiceType, Ros1Type
 
 log = logging.getLogger(__name__)
+
+EntityT = TypeVar("EntityT")
 
 #: Seconds a peer gets to send its connection header; a silent peer cannot hold a thread forever.
 HEADER_TIMEOUT_S = 5.0
@@ -376,29 +378,35 @@ class Ros1Node:
         self.close()
 
     # -- topics ---------------------------------------------------------------------------------------------
-    def advertise(self, topic: str, msg_type: Ros1Type, *, latch: bool = False) -> Ros1Publisher:
+    def _add_registered(
+        self, table: dict[str, EntityT], name: str, taken: str, make: Callable[[], EntityT],
+        register: Callable[[EntityT], None],
+    ) -> EntityT:  # fmt: skip
+        """Add an entity to ``table`` under ``name`` and register it with the master; a failed registration (the
+        master down) leaves nothing half-added, so the caller may try again once the master is back. ``taken``
+        says what the name already is, for the error (e.g. "topic /a is already advertised")."""
         with self._lock:
-            if topic in self.publishers:
-                raise MiddlewareError(f"ROS 1 topic {topic} is already advertised by {self.caller_id}")
-            pub = self.publishers[topic] = Ros1Publisher(self, topic, msg_type, latch)
+            if name in table:
+                raise MiddlewareError(f"ROS 1 {taken} by {self.caller_id}")
+            entity = table[name] = make()
         try:
-            self._register_publisher(pub)
+            register(entity)
         except MiddlewareError:
-            del self.publishers[topic]  # the caller may try again once the master is back
+            del table[name]
             raise
-        return pub
+        return entity
+
+    def advertise(self, topic: str, msg_type: Ros1Type, *, latch: bool = False) -> Ros1Publisher:
+        return self._add_registered(
+            self.publishers, topic, f"topic {topic} is already advertised",
+            lambda: Ros1Publisher(self, topic, msg_type, latch), self._register_publisher,
+        )  # fmt: skip
 
     def subscribe(self, topic: str, msg_type: Ros1Type, callback: Callable[[bytes, str], None]) -> Ros1Subscription:
-        with self._lock:
-            if topic in self.subscriptions:
-                raise MiddlewareError(f"ROS 1 topic {topic} is already subscribed by {self.caller_id}")
-            sub = self.subscriptions[topic] = Ros1Subscription(self, topic, msg_type, callback)
-        try:
-            self._register_subscriber(sub)
-        except MiddlewareError:
-            del self.subscriptions[topic]  # the caller may try again once the master is back
-            raise
-        return sub
+        return self._add_registered(
+            self.subscriptions, topic, f"topic {topic} is already subscribed",
+            lambda: Ros1Subscription(self, topic, msg_type, callback), self._register_subscriber,
+        )  # fmt: skip
 
     def _register_publisher(self, pub: Ros1Publisher) -> None:
         xmlrpc_call(self.master_uri, "registerPublisher", self.caller_id, pub.topic, pub.type.ros1_name, self.uri)
@@ -414,16 +422,10 @@ class Ros1Node:
         self, name: str, srv_type: Ros1ServiceType, handler: Callable[[bytes, str], bytes]
     ) -> Ros1ServiceServer:
         """Provide service ``name``: ``handler(request_bytes, caller_id) -> response_bytes``."""
-        with self._lock:
-            if name in self.services:
-                raise MiddlewareError(f"ROS 1 service {name} is already provided by {self.caller_id}")
-            server = self.services[name] = Ros1ServiceServer(self, name, srv_type, handler)
-        try:
-            self._register_service(server)
-        except MiddlewareError:
-            del self.services[name]  # the caller may try again once the master is back
-            raise
-        return server
+        return self._add_registered(
+            self.services, name, f"service {name} is already provided",
+            lambda: Ros1ServiceServer(self, name, srv_type, handler), self._register_service,
+        )  # fmt: skip
 
     def _register_service(self, server: Ros1ServiceServer) -> None:
         xmlrpc_call(self.master_uri, "registerService", self.caller_id, server.name, self.service_uri, self.uri)
