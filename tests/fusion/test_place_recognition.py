@@ -1,0 +1,88 @@
+"""A peer's keyframe, summarised as on the wire, is recognised in this agent's memory and verified: rendered views
+of a textured room, real ORB features, a peer with another camera."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fleetslam.datasets.base import Intrinsics
+from fleetslam.fusion.keyframe_summary import summarize
+from fleetslam.fusion.place_recognition import PeerPlaceRecognizer, make_peer_recognizer
+from fleetslam.geometry import invert, make_pose, rotation_angle
+from fleetslam.slam.features import FeatureExtractor
+from fleetslam.slam.loop_closure import GeometricVerifier, make_loop_closure_detector
+from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
+from fleetslam.slam.odometry import backproject
+
+from ..slam.textured_room import make_textures, render
+
+OWN = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
+PEER = Intrinsics(fx=300.0, fy=300.0, cx=161.0, cy=118.0, width=320, height=240)
+OPTICAL_IN_WORLD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+"""Camera optical axes (x right, y down, z forward) in a z-up world looking along world x."""
+
+
+def camera_pose(x: float, y: float, yaw_deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    yaw = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return make_pose(yaw @ OPTICAL_IN_WORLD, [x, y, 0.2])
+
+
+def features_of(pose: np.ndarray, intrinsics: Intrinsics, textures: list[np.ndarray]):
+    rgb, depth = render(pose, intrinsics, textures)
+    features = FeatureExtractor(max_features=600).detect(rgb[:, :, 0])
+    points, valid = backproject(features.keypoints, depth, intrinsics, 0.1, 8.0)
+    points[~valid] = np.nan
+    return features.keypoints, points, features.descriptors
+
+
+def own_memory(textures: list[np.ndarray], poses: list[np.ndarray]):
+    detector = make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(), OWN.K)
+    ids = []
+    for index, pose in enumerate(poses):
+        keypoints, points, descriptors = features_of(pose, OWN, textures)
+        hypothesis = detector.process(float(index), pose, keypoints, points, descriptors)
+        ids.append(hypothesis.query_id)
+    return detector.memory, ids
+
+
+def test_a_peer_view_of_a_known_place_is_recognised_with_its_transform() -> None:
+    textures = make_textures(np.random.default_rng(3))
+    own_poses = [camera_pose(-1.0, 0.0, yaw) for yaw in (0.0, 90.0, 180.0, 270.0)]
+    memory, ids = own_memory(textures, own_poses)
+    recognizer = make_peer_recognizer(LoopClosureConfig(), memory, OWN.K)
+
+    peer_pose_in_own_world = camera_pose(-0.6, 0.3, 100.0)  # near the view along +y, another camera
+    keypoints, points, descriptors = features_of(peer_pose_in_own_world, PEER, textures)
+    peer_map_pose = make_pose(np.eye(3), [5.0, -2.0, 0.0]) @ peer_pose_in_own_world  # the peer's own frame
+    summary = summarize("r2d2", 7, 0, peer_map_pose, PEER, keypoints, points, descriptors)
+    result = recognizer.recognize(summary)
+
+    assert result.match is not None, result.reasons
+    assert result.match.own_id == ids[1]
+    assert (result.match.peer_agent, result.match.peer_id) == ("r2d2", 7)
+    truth = invert(own_poses[1]) @ peer_pose_in_own_world
+    error = invert(truth) @ result.match.relative
+    assert np.linalg.norm(error[:3, 3]) < 0.03
+    assert np.degrees(rotation_angle(error)) < 1.0
+
+
+def test_a_view_of_another_room_is_not_recognised() -> None:
+    memory, _ = own_memory(make_textures(np.random.default_rng(3)), [camera_pose(-1.0, 0.0, 90.0)])
+    recognizer = make_peer_recognizer(LoopClosureConfig(), memory, OWN.K)
+    elsewhere = make_textures(np.random.default_rng(4))
+    keypoints, points, descriptors = features_of(camera_pose(-0.6, 0.3, 100.0), PEER, elsewhere)
+    result = recognizer.recognize(summarize("r2d2", 1, 0, np.eye(4), PEER, keypoints, points, descriptors))
+    assert result.match is None
+    assert len(result.candidates) <= 2
+
+
+def test_the_recognizer_refuses_a_verifier_in_base_frames() -> None:
+    memory, _ = own_memory(make_textures(np.random.default_rng(3)), [camera_pose(-1.0, 0.0, 0.0)])
+    mounted = GeometricVerifier(OWN.K, camera_to_base=make_pose(np.eye(3), [0.1, 0.0, 0.3]))
+    try:
+        PeerPlaceRecognizer(memory, mounted)
+    except ValueError as err:
+        assert "camera frames" in str(err)
+    else:
+        raise AssertionError("a verifier with a base mounting was accepted")
