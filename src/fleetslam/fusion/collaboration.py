@@ -1,0 +1,163 @@
+"""One agent's side of collaborative SLAM: peers' keyframes recognised in its memory, closures kept per peer,
+and the peers' map frames placed in its own once the closures agree.
+
+:class:`InterAgentLinker` is the pure core a SLAM node drives:
+
+- ``queue_summary``: a peer's :class:`~fleetslam.fusion.keyframe_summary.KeyframeSummary` arrived (bounded queue;
+  the oldest of a peer leave first when it floods);
+- ``apply_graph``: a peer's graph update arrived (its :class:`~fleetslam.fusion.graph_exchange.GraphMirror`
+  tells whether a full graph must be requested);
+- ``step``: from the thread that owns the memory, between frames, verify queued summaries within a time budget;
+  each verified match becomes a :class:`~fleetslam.fusion.consistency.PairClosure` in that peer's
+  :class:`~fleetslam.fusion.consistency.ClosureSet`, whose decision gives ``T_ownmap_peermap``.
+
+Placing the agent in the fleet frame (:meth:`InterAgentLinker.fleet_transform`): the fleet frame is the map frame
+of the reference agent (configured; by default the alphabetically first agent of the fleet); an agent aligned with
+any peer whose place in the fleet frame is known gets ``T_fleet_ownmap = T_fleet_peermap · T_ownmap_peermap⁻¹``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field
+
+from fleetslam.config import ConfigModel
+from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure
+from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
+from fleetslam.fusion.keyframe_summary import KeyframeSummary
+from fleetslam.fusion.place_recognition import PeerMatch, PeerPlaceRecognizer
+from fleetslam.geometry import invert
+
+Pose = NDArray[np.float64]
+
+
+class CollaborationConfig(ConfigModel):
+    """Inter-agent place recognition and alignment."""
+
+    summary_features: int = Field(400, ge=20, le=4096)
+    """Features per keyframe sent to peers (with depth, spread over the image): ~38 bytes each."""
+    max_verifications: int = Field(2, ge=1)
+    """Own locations verified (PnP both ways) per peer keyframe, the best scored first."""
+    budget_ms: float = Field(15.0, gt=0.0)
+    """Time the node gives peer keyframes between two of its own frames; the rest wait in the queue."""
+    max_queued: int = Field(30, ge=1)
+    """Peer keyframes waiting to be recognised, all peers together; the oldest leave first."""
+    min_closures: int = Field(3, ge=1)
+    """Mutually consistent closures with a peer before its map frame is placed in this agent's."""
+    min_places: int = Field(2, ge=1)
+    """Distinct places (``place_spacing``) among those closures: one place seen often is one piece of evidence."""
+    place_spacing: float = Field(0.5, gt=0.0)
+    """Distance (m) between this agent's keyframes that counts them as distinct places."""
+    dominance: float = Field(2.0, ge=1.0)
+    """The consistent set must be this many times larger than any set inconsistent with it (repeated structure)."""
+    translation_tolerance: float = Field(0.15, gt=0.0)
+    """Disagreement (m) allowed between two closures' implied frames at the same place."""
+    rotation_tolerance_deg: float = Field(3.0, gt=0.0)
+    """Disagreement (degrees) allowed between two closures' implied frames at the same place."""
+    drift_fraction: float = Field(0.05, ge=0.0)
+    """Extra disagreement allowed per metre between the two places (both agents' drift)."""
+
+
+@dataclass
+class PeerState:
+    """What this agent knows of one peer."""
+
+    mirror: GraphMirror[object] = field(default_factory=GraphMirror)
+    closures: ClosureSet = field(default_factory=ClosureSet)
+    decision: Decision | None = None
+    matches: int = 0
+    """Peer keyframes verified against this agent's memory."""
+    recognised: int = 0
+    """Peer keyframes tried."""
+
+
+class InterAgentLinker:
+    """Peers' keyframes in, verified closures and peer alignments out (see the module docstring)."""
+
+    def __init__(
+        self, agent: str, config: CollaborationConfig | None = None, *, clock: Callable[[], float] = time.perf_counter
+    ) -> None:
+        self.agent = agent
+        self.config = config or CollaborationConfig()
+        self.clock = clock
+        self.peers: dict[str, PeerState] = {}
+        self.queue: deque[KeyframeSummary] = deque()
+        self.dropped = 0
+        """Peer keyframes that left the queue unprocessed (flood or a busy agent)."""
+
+    def peer(self, agent: str) -> PeerState:
+        """The state of a peer (created on first use)."""
+        state = self.peers.get(agent)
+        if state is None:
+            c = self.config
+            tolerance = ConsistencyTolerance(
+                translation_m=c.translation_tolerance,
+                rotation_rad=float(np.radians(c.rotation_tolerance_deg)),
+                drift_fraction=c.drift_fraction,
+            )
+            closures = ClosureSet(
+                tolerance=tolerance, min_inliers=c.min_closures, min_places=c.min_places,
+                place_spacing_m=c.place_spacing, dominance=c.dominance,
+            )  # fmt: skip
+            state = self.peers[agent] = PeerState(closures=closures)
+        return state
+
+    def queue_summary(self, summary: KeyframeSummary) -> None:
+        """A peer keyframe to recognise when there is time (this agent's own summaries are ignored)."""
+        if summary.agent == self.agent:
+            return
+        self.queue.append(summary)
+        while len(self.queue) > self.config.max_queued:
+            self.queue.popleft()
+            self.dropped += 1
+
+    def apply_graph(self, agent: str, update: GraphUpdate[object]) -> bool:
+        """Apply a peer's graph update; False when the peer's full graph should be requested."""
+        return self.peer(agent).mirror.apply(update)
+
+    def step(self, recognizer: PeerPlaceRecognizer, own_camera_poses: Mapping[int, Pose]) -> list[PeerMatch]:
+        """Recognise queued peer keyframes until the queue is empty or the budget is spent; returns the matches
+        verified (each also added to its peer's closures, whose decision is updated)."""
+        start = self.clock()
+        matches: list[PeerMatch] = []
+        while self.queue and (self.clock() - start) * 1000.0 < self.config.budget_ms:
+            summary = self.queue.popleft()
+            state = self.peer(summary.agent)
+            state.recognised += 1
+            result = recognizer.recognize(summary)
+            match = result.match
+            if match is None or match.own_id not in own_camera_poses:
+                continue
+            peer_pose = state.mirror.poses.get(summary.keyframe_id, summary.pose)
+            state.closures.add(
+                PairClosure(match.own_id, match.peer_id, np.asarray(own_camera_poses[match.own_id]), peer_pose,
+                            match.relative)
+            )  # fmt: skip
+            state.matches += 1
+            state.decision = state.closures.decide()
+            matches.append(match)
+        return matches
+
+    def alignment(self, peer: str) -> Pose | None:
+        """``T_ownmap_peermap`` once the closures with ``peer`` agree (see :class:`ClosureSet`), else None."""
+        state = self.peers.get(peer)
+        if state is None or state.decision is None:
+            return None
+        return state.decision.alignment
+
+    def fleet_transform(self, reference: str, peers_in_fleet: Mapping[str, Pose]) -> Pose | None:
+        """``T_fleet_ownmap``: identity for the reference agent; else through the first aligned peer (sorted by
+        name) whose ``T_fleet_peermap`` is known; None while there is none."""
+        if self.agent == reference:
+            return np.eye(4)
+        for peer in sorted(peers_in_fleet):
+            alignment = self.alignment(peer)
+            if alignment is not None:
+                return np.asarray(peers_in_fleet[peer] @ invert(alignment), dtype=np.float64)
+        return None
