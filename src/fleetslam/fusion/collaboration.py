@@ -40,27 +40,27 @@ Pose = NDArray[np.float64]
 class CollaborationConfig(ConfigModel):
     """Inter-agent place recognition and alignment."""
 
-    summary_features: int = Field(400, ge=20, le=4096)
+    summary_features: int = Field(default=400, ge=20, le=4096)
     """Features per keyframe sent to peers (with depth, spread over the image): ~38 bytes each."""
-    max_verifications: int = Field(2, ge=1)
+    max_verifications: int = Field(default=2, ge=1)
     """Own locations verified (PnP both ways) per peer keyframe, the best scored first."""
-    budget_ms: float = Field(15.0, gt=0.0)
+    budget_ms: float = Field(default=15.0, gt=0.0)
     """Time the node gives peer keyframes between two of its own frames; the rest wait in the queue."""
-    max_queued: int = Field(30, ge=1)
+    max_queued: int = Field(default=30, ge=1)
     """Peer keyframes waiting to be recognised, all peers together; the oldest leave first."""
-    min_closures: int = Field(3, ge=1)
+    min_closures: int = Field(default=3, ge=1)
     """Mutually consistent closures with a peer before its map frame is placed in this agent's."""
-    min_places: int = Field(2, ge=1)
+    min_places: int = Field(default=2, ge=1)
     """Distinct places (``place_spacing``) among those closures: one place seen often is one piece of evidence."""
-    place_spacing: float = Field(0.5, gt=0.0)
+    place_spacing: float = Field(default=0.5, gt=0.0)
     """Distance (m) between this agent's keyframes that counts them as distinct places."""
-    dominance: float = Field(2.0, ge=1.0)
+    dominance: float = Field(default=2.0, ge=1.0)
     """The consistent set must be this many times larger than any set inconsistent with it (repeated structure)."""
-    translation_tolerance: float = Field(0.15, gt=0.0)
+    translation_tolerance: float = Field(default=0.15, gt=0.0)
     """Disagreement (m) allowed between two closures' implied frames at the same place."""
-    rotation_tolerance_deg: float = Field(3.0, gt=0.0)
+    rotation_tolerance_deg: float = Field(default=3.0, gt=0.0)
     """Disagreement (degrees) allowed between two closures' implied frames at the same place."""
-    drift_fraction: float = Field(0.05, ge=0.0)
+    drift_fraction: float = Field(default=0.05, ge=0.0)
     """Extra disagreement allowed per metre between the two places (both agents' drift)."""
 
 
