@@ -56,7 +56,8 @@ def test_keystore_files_and_refusals(keystore: tuple[Path, int], tmp_path: Path)
     directory, port = keystore
     for host in ("router", "c3po", "r2d2", "station"):
         folder = directory / host
-        assert {p.name for p in folder.iterdir()} == {"ca.pem", "cert.pem", "key.pem", "zenoh.json5"}
+        files = {"ca.pem", "cert.pem", "key.pem", "zenoh.json5"} | ({"passwords"} if host == "router" else set())
+        assert {p.name for p in folder.iterdir()} == files
         assert stat.S_IMODE((folder / "key.pem").stat().st_mode) == 0o600
     c3po = json.loads((directory / "c3po" / "zenoh.json5").read_text())
     assert c3po["mode"] == "client" and c3po["connect"]["endpoints"] == [f"tls/localhost:{port}"]

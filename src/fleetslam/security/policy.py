@@ -1,9 +1,13 @@
-"""Zenoh configs of a secured fleet (pure): mutual TLS to one router, and the router's access control.
+"""Zenoh configs of a secured fleet (pure): mutual TLS and a password to one router, and the router's access control.
 
 Every host (each robot, the station) connects as a Zenoh *client* to the router over ``tls/`` with a certificate
-whose common name is its identity, signed by the fleet's CA; the router accepts no link without one (mutual TLS).
-Clients cannot link to each other, so the router sees, and filters, everything. Its access control
-(``access_control``, default deny) lets:
+whose common name is its identity, signed by the fleet's CA, and with its own password (Zenoh's user-password
+authentication, ``transport/auth/usrpwd``: user = identity); the router accepts no link without both (mutual TLS,
+then the password checked against its dictionary file; the password never crosses the link, the router sends a
+nonce and the host answers with an HMAC of its password keyed by it). Clients cannot link to each other, so the
+router sees, and filters, everything. Its access control (``access_control``, default deny; a subject is a
+certificate common name *and* the same user name, so one host's password does not lend another's certificate its
+rights) lets:
 
 - everyone subscribe to and query any topic's data, declare and watch liveliness tokens (the ROS graph), and
   publish ``/statistics``;
@@ -20,10 +24,12 @@ services are filtered.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from fleetslam.errors import ConfigError
 
 #: Every kind of message the access control filters (Zenoh 1.x names).
 _READ = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "liveliness_token"]
@@ -32,11 +38,13 @@ _SERVE = ["put", "delete", "declare_queryable", "reply"]
 
 @dataclass(frozen=True)
 class Identity:
-    """One host's credentials: its name (the certificate's common name) and its files."""
+    """One host's credentials: its name (the certificate's common name and its user name), its files, and its
+    password (the router's identity has none: it only accepts links)."""
 
     name: str
     key: Path
     certificate: Path
+    password: str | None = None
 
 
 def _tls(ca: Path, identity: Identity, *, listen: bool) -> dict[str, Any]:
@@ -56,7 +64,10 @@ def _tls(ca: Path, identity: Identity, *, listen: bool) -> dict[str, Any]:
 def host_config(
     ca: Path, identity: Identity, router_endpoints: Sequence[str], *, max_message_bytes: int
 ) -> dict[str, Any]:
-    """A robot's or the station's session config: a TLS client of the router (rmw_zenoh session defaults)."""
+    """A robot's or the station's session config: a TLS client of the router that gives its user name and password
+    (rmw_zenoh session defaults otherwise)."""
+    if not identity.password:
+        raise ConfigError(f"host {identity.name!r}: a host's config needs its password")
     return {
         "mode": "client",
         "connect": {"endpoints": list(router_endpoints)},
@@ -64,7 +75,10 @@ def host_config(
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}, "delay": 0},
         "timestamping": {"enabled": {"router": True, "peer": True, "client": True}},
         "queries_default_timeout": 600000,
-        "transport": {"link": {"tls": _tls(ca, identity, listen=False), "rx": {"max_message_size": max_message_bytes}}},
+        "transport": {
+            "link": {"tls": _tls(ca, identity, listen=False), "rx": {"max_message_size": max_message_bytes}},
+            "auth": {"usrpwd": {"user": identity.name, "password": identity.password}},
+        },
     }
 
 
@@ -97,7 +111,7 @@ def access_control(agents: Sequence[str], stations: Sequence[str], domain_id: in
     for agent in agents:
         rules.append({"id": f"own:{agent}", "permission": "allow", "flows": ["ingress"],
                       "messages": [*_SERVE, "query"], "key_exprs": _keys(domain_id, agent)})  # fmt: skip
-    subjects = [{"id": name, "cert_common_names": [name]} for name in everyone]
+    subjects = [{"id": name, "cert_common_names": [name], "usernames": [name]} for name in everyone]
     policies = [{"id": "everyone", "rules": ["read", "deliver", "statistics", "history"], "subjects": everyone}]
     policies += [{"id": f"agent:{a}", "rules": [f"own:{a}"], "subjects": [a]} for a in agents]
     if stations:
@@ -105,17 +119,29 @@ def access_control(agents: Sequence[str], stations: Sequence[str], domain_id: in
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
+def password_dictionary(passwords: Mapping[str, str]) -> str:
+    """The router's ``dictionary_file``: one ``user:password`` line per host (Zenoh's format)."""
+    for user, password in passwords.items():
+        if not user or not password or any(c in user + password for c in ":\n\r"):
+            raise ConfigError(f"user {user!r}: user names and passwords must be non-empty, without ':' or newlines")
+    return "".join(f"{user}:{password}\n" for user, password in passwords.items())
+
+
 def router_config(
     ca: Path, identity: Identity, listen: Sequence[str], agents: Sequence[str], stations: Sequence[str], *,
-    max_message_bytes: int, domain_id: int = 0,
+    dictionary: Path, max_message_bytes: int, domain_id: int = 0,
 ) -> dict[str, Any]:  # fmt: skip
-    """The router's config: listens on ``tls/`` endpoints only, mutual TLS, the fleet's access control."""
+    """The router's config: listens on ``tls/`` endpoints only, mutual TLS, each host's password checked against
+    ``dictionary`` (see :func:`password_dictionary`), the fleet's access control."""
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "connect": {"endpoints": []},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}, "delay": 0},
         "timestamping": {"enabled": True},
-        "transport": {"link": {"tls": _tls(ca, identity, listen=True), "rx": {"max_message_size": max_message_bytes}}},
+        "transport": {
+            "link": {"tls": _tls(ca, identity, listen=True), "rx": {"max_message_size": max_message_bytes}},
+            "auth": {"usrpwd": {"dictionary_file": str(dictionary)}},
+        },
         "access_control": access_control(agents, stations, domain_id),
     }
