@@ -465,21 +465,13 @@ class OccupancyOctree:
         return self._centers(False)
 
     def metric_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Min and max corner of all known space."""
+        """Min and max corner of all known space (OctoMap's getMetricMin and getMetricMax; zeros for an empty tree)."""
         leaves = self.leaves()
         if len(leaves) == 0:
             return np.zeros(3), np.zeros(3)
         size = np.power(2.0, TREE_DEPTH - leaves.depths.astype(np.float64))[:, None]
         lo = (leaves.keys.astype(np.float64) - TREE_MAX_VAL) * self.resolution
         return lo.min(axis=0), (lo + size * self.resolution).max(axis=0)
-
-    def metric_min(self) -> NDArray[np.float64]:
-        """Min corner of all known space (OctoMap's getMetricMin; zeros for an empty tree)."""
-        return self.metric_bounds()[0]
-
-    def metric_max(self) -> NDArray[np.float64]:
-        """Max corner of all known space (OctoMap's getMetricMax; zeros for an empty tree)."""
-        return self.metric_bounds()[1]
 
     def pop_changed_keys(self) -> NDArray[np.uint16]:
         """Finest keys ``(K, 3)`` of the voxels whose value changed since the last pop (for incremental viewers)."""
@@ -607,19 +599,6 @@ def _cuda_available() -> bool:
     from fleetslam.mapping.cuda_trace import cuda_available
 
     return cuda_available()
-
-
-def canonical_leaves(leaves: LeafArrays) -> tuple[LeafArrays, int]:
-    """Canonical pruning of any leaf set: (pruned leaves in pre-order, number of inner nodes)."""
-    fine = leaves.depths == TREE_DEPTH
-    coarse_depths = leaves.depths[~fine].astype(np.int64)
-    shifts = (TREE_DEPTH - coarse_depths).astype(np.uint64)[:, None]
-    coarse_codes = pack(leaves.keys[~fine].astype(np.uint64) >> shifts) if (~fine).any() else np.zeros(0, np.uint64)
-    structure = _collapse(
-        morton(leaves.keys[fine]), np.asarray(leaves.log_odds[fine], np.float32), coarse_depths, coarse_codes,
-        leaves.log_odds[~fine],
-    )  # fmt: skip
-    return structure.leaves, structure.inner_count
 
 
 def _collapse(

@@ -317,13 +317,6 @@ class VisualVocabulary:
         """Locations referencing a word: location id -> occurrences (empty if none)."""
         return self._references.get(int(word_id), {})
 
-    def replace_references(self, old_id: int, new_id: int, word_ids: Iterable[int]) -> None:
-        """Move references of a location to another id (used when locations are merged)."""
-        for word in {int(w) for w in word_ids if w >= 0}:
-            refs = self._references.get(word)
-            if refs is not None and old_id in refs:
-                refs[new_id] = refs.get(new_id, 0) + refs.pop(old_id)
-
     # ------------------------------------------------------------------ persistence helpers
     @classmethod
     def from_words(
