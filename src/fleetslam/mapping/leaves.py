@@ -43,4 +43,3 @@ class LeafArrays:
             np.asarray(depths, dtype=np.uint8)[order],
             np.asarray(log_odds, dtype=np.float32)[order],
         )
-

@@ -86,6 +86,7 @@ class Signature:
             raise ValueError(f"link {link.from_id}->{link.to_id} does not start at location {self.id}")
         self.links[link.to_id] = link
 
+
 def word_set_similarity(a: Signature, b: Signature) -> float:
     """Rehearsal similarity: words common to both (counted with multiplicity) over the larger word count.
 
