@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fleetslam._imports import require
 from fleetslam.errors import MapFileError
 from fleetslam.mapping import _kernels as K
 from fleetslam.mapping import _prune_kernels as P
@@ -39,6 +39,7 @@ from fleetslam.mapping.keys import (
 from fleetslam.mapping.leaves import LeafArrays
 from fleetslam.mapping.raycast import cast_ray, scan_keys
 
+numba = require("numba", "mapping")
 log = logging.getLogger(__name__)
 
 #: Largest fill of the voxel table, LOAD_NUM / LOAD_DEN, before it doubles. 5/8 rather than 1/2: the table takes

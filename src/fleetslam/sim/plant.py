@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.errors import MissingExtraError, SimulationError
+from fleetslam._imports import require
+from fleetslam.errors import SimulationError
 from fleetslam.geometry import invert, make_pose, yaw_of
 from fleetslam.robot.controller import BaseController, ControllerOutput
 from fleetslam.sim.camera import CameraIntrinsics, KinectModel, intrinsics_from_config, kinect_from_config
@@ -37,11 +38,7 @@ ROBOT_COLORS = ((0.85, 0.65, 0.1), (0.2, 0.45, 0.85), (0.75, 0.2, 0.2), (0.3, 0.
 def import_mujoco() -> Any:
     """Import MuJoCo, selecting a headless GL backend (EGL) unless one was chosen."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        import mujoco
-    except ImportError as err:
-        raise MissingExtraError("mujoco", "sim") from err
-    return mujoco
+    return require("mujoco", "sim")
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
 from fleetslam.errors import SlamError
 
 DescriptorKind = Literal["binary", "float"]
@@ -273,8 +274,7 @@ class VisualVocabulary:
     def _nearest2_opencv(
         desc: NDArray[Any], ids: NDArray[np.int64], data: NDArray[Any]
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        import cv2
-
+        cv2 = require("cv2", "slam")
         dist, index = cv2.batchDistance(desc, data, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
         distances = np.asarray(dist, dtype=np.float64)
         nearest = np.asarray(ids[np.asarray(index)[:, 0]], dtype=np.int64)
