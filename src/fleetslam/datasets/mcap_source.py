@@ -141,6 +141,8 @@ class McapSource:
         """Messages in log order, each with a function that decodes it (skipped messages cost no decoding)."""
         with self.path.open("rb") as f, _unreadable_as_dataset_error(self.path):
             for schema, channel, message in make_reader(f).iter_messages(topics=topics):
+                if schema is None:
+                    raise DatasetError(f"{self.path}: the messages on {channel.topic} have no schema")
                 yield channel.topic, partial(self._decode, bytes(message.data), schema.name, channel.topic)
 
     def _decode(self, data: bytes, type_name: str, topic: str) -> Any:

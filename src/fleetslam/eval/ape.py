@@ -19,8 +19,10 @@ from fleetslam.trajectory import Trajectory
 
 
 def _evo() -> Any:
-    for module in ("geometry", "metrics", "sync", "trajectory"):
-        require(f"evo.core.{module}", "eval")
+    require("evo.core.geometry", "eval")
+    require("evo.core.metrics", "eval")
+    require("evo.core.sync", "eval")
+    require("evo.core.trajectory", "eval")
     return require("evo", "eval")
 
 

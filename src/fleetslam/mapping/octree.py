@@ -53,6 +53,7 @@ def logodds(probability: float) -> np.float32:
 
 
 def probability(log_odds: ArrayLike) -> NDArray[np.float64]:
+    """Occupancy probability of log-odds values (OctoMap's probability()), in float64."""
     return 1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))
 
 
