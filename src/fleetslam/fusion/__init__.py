@@ -17,11 +17,13 @@ if TYPE_CHECKING:
 
 __all__ = ["FleetMap", "FleetMapConfig", "FleetMapNode", "InterAgentClosure", "estimate_agent_transform", "rigid_fit"]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "alignment": ["InterAgentClosure", "estimate_agent_transform", "rigid_fit"],
-        "fleet_map": ["FleetMap"],
-        "node": ["FleetMapConfig", "FleetMapNode"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "alignment": ["InterAgentClosure", "estimate_agent_transform", "rigid_fit"],
+            "fleet_map": ["FleetMap"],
+            "node": ["FleetMapConfig", "FleetMapNode"],
+        },
+    )

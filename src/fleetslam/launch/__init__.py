@@ -28,12 +28,14 @@ __all__ = [
     "resolve_processes",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "description": ["FleetDescription", "ProcessSpec", "RestartPolicy", "load_fleet", "resolve_processes"],
-        "supervisor": ["Supervisor"],
-        "router_process": ["RouterProcess"],
-        "netns": ["VirtualNetwork", "netns_available"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "description": ["FleetDescription", "ProcessSpec", "RestartPolicy", "load_fleet", "resolve_processes"],
+            "supervisor": ["Supervisor"],
+            "router_process": ["RouterProcess"],
+            "netns": ["VirtualNetwork", "netns_available"],
+        },
+    )

@@ -60,25 +60,27 @@ __all__ = [
     "write_scan_graph",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "config": ["MappingConfig", "make_octree"],
-        "octree": ["InsertSummary", "OccupancyOctree", "logodds", "probability"],
-        "leaves": ["LeafArrays"],
-        "keyframe_mapper": ["KeyframeMapper", "depth_to_points"],
-        "octomap_io": ["OctreeFile", "bt_bytes", "read_octree_file", "write_bt", "write_ot"],
-        "scan_io": [
-            "ScanEdge",
-            "ScanGraph",
-            "ScanNode",
-            "load_scan_graph",
-            "load_scans",
-            "read_scan_graph",
-            "write_scan_graph",
-        ],
-        "rgbd_scans": ["open_rgbd_scans"],
-        "products": ["cube_list_markers", "fit_ground_plane", "project_occupancy_grid"],
-        "node": ["MappingNode", "MappingNodeConfig"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "config": ["MappingConfig", "make_octree"],
+            "octree": ["InsertSummary", "OccupancyOctree", "logodds", "probability"],
+            "leaves": ["LeafArrays"],
+            "keyframe_mapper": ["KeyframeMapper", "depth_to_points"],
+            "octomap_io": ["OctreeFile", "bt_bytes", "read_octree_file", "write_bt", "write_ot"],
+            "scan_io": [
+                "ScanEdge",
+                "ScanGraph",
+                "ScanNode",
+                "load_scan_graph",
+                "load_scans",
+                "read_scan_graph",
+                "write_scan_graph",
+            ],
+            "rgbd_scans": ["open_rgbd_scans"],
+            "products": ["cube_list_markers", "fit_ground_plane", "project_occupancy_grid"],
+            "node": ["MappingNode", "MappingNodeConfig"],
+        },
+    )

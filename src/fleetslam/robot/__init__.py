@@ -57,21 +57,23 @@ __all__ = [
     "wheel_speeds",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "config": ["PidGains", "RobotConfig", "SpeedLimits"],
-        "kinematics": ["body_increment", "body_twist", "wheel_speeds"],
-        "odometry": ["Odometry", "OdometryState"],
-        "pid": ["Pid"],
-        "limits": ["SpeedLimiter"],
-        "controller": ["BaseController", "ControllerOutput"],
-        "interfaces": ["WheelInterface"],
-        "drive": ["MotorModelDrive"],
-        "autopilot": ["ROUTES", "Autopilot", "Route", "get_route", "register_route"],
-        "teleop": ["JoyMapper", "JoyPreset", "JoyTeleop", "KeyboardTeleop", "load_joy_preset"],
-        "node": ["BaseControllerNode"],
-        "autopilot_node": ["AutopilotNode"],
-        "teleop_node": ["TwistPublisher", "run_joystick", "run_keyboard"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "config": ["PidGains", "RobotConfig", "SpeedLimits"],
+            "kinematics": ["body_increment", "body_twist", "wheel_speeds"],
+            "odometry": ["Odometry", "OdometryState"],
+            "pid": ["Pid"],
+            "limits": ["SpeedLimiter"],
+            "controller": ["BaseController", "ControllerOutput"],
+            "interfaces": ["WheelInterface"],
+            "drive": ["MotorModelDrive"],
+            "autopilot": ["ROUTES", "Autopilot", "Route", "get_route", "register_route"],
+            "teleop": ["JoyMapper", "JoyPreset", "JoyTeleop", "KeyboardTeleop", "load_joy_preset"],
+            "node": ["BaseControllerNode"],
+            "autopilot_node": ["AutopilotNode"],
+            "teleop_node": ["TwistPublisher", "run_joystick", "run_keyboard"],
+        },
+    )

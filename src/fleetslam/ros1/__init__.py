@@ -30,13 +30,15 @@ __all__ = [
     "rviz_config",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "bridge": ["Ros1Bridge", "TopicRule"],
-        "node": ["MasterUnreachableError", "Ros1Node", "Ros1Publisher", "Ros1ServiceServer", "Ros1Subscription"],
-        "messages": ["ros1_typestore"],
-        "bag": ["BagConversion", "convert_to_rosbag1"],
-        "rviz": ["rviz_config"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "bridge": ["Ros1Bridge", "TopicRule"],
+            "node": ["MasterUnreachableError", "Ros1Node", "Ros1Publisher", "Ros1ServiceServer", "Ros1Subscription"],
+            "messages": ["ros1_typestore"],
+            "bag": ["BagConversion", "convert_to_rosbag1"],
+            "rviz": ["rviz_config"],
+        },
+    )

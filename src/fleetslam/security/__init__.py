@@ -23,10 +23,12 @@ __all__ = [
     "router_config",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "keystore": ["host_folder", "init_keystore", "load_zenoh_config"],
-        "policy": ["Identity", "access_control", "host_config", "router_config"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "keystore": ["host_folder", "init_keystore", "load_zenoh_config"],
+            "policy": ["Identity", "access_control", "host_config", "router_config"],
+        },
+    )

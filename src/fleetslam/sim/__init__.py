@@ -36,14 +36,16 @@ __all__ = [
     "world_xml",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "config": ["CameraConfig", "RobotPlacement", "SimConfig", "WorldConfig"],
-        "plant": ["Plant", "SimRobot"],
-        "camera": ["CameraIntrinsics", "KinectModel"],
-        "world": ["build_world", "world_xml"],
-        "export": ["ExportResult", "export_tum"],
-        "node": ["SimNode", "run_sim_node"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "config": ["CameraConfig", "RobotPlacement", "SimConfig", "WorldConfig"],
+            "plant": ["Plant", "SimRobot"],
+            "camera": ["CameraIntrinsics", "KinectModel"],
+            "world": ["build_world", "world_xml"],
+            "export": ["ExportResult", "export_tum"],
+            "node": ["SimNode", "run_sim_node"],
+        },
+    )

@@ -57,20 +57,22 @@ __all__ = [
     "run_offline",
 ]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "config": ["BackendConfig", "FeatureConfig", "OdometryConfig", "SlamConfig"],
-        "loop_config": ["LoopClosureConfig", "MemoryConfig"],
-        "pipeline": ["SlamPipeline", "SlamResult", "StepResult", "run_offline"],
-        "odometry": ["OdometryResult", "VisualOdometry", "make_odometry"],
-        "loop_closure": ["LoopClosureDetector", "LoopHypothesis", "make_loop_closure_detector"],
-        "backend": ["Constraint", "PoseGraph", "make_pose_graph"],
-        "features": ["FeatureExtractor", "Features"],
-        "memory": ["Memory"],
-        "database": ["MapDatabase"],
-        "signature": ["Link", "LinkType", "Signature"],
-        "vocabulary": ["VisualVocabulary"],
-        "node": ["SlamNode", "SlamNodeConfig"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "config": ["BackendConfig", "FeatureConfig", "OdometryConfig", "SlamConfig"],
+            "loop_config": ["LoopClosureConfig", "MemoryConfig"],
+            "pipeline": ["SlamPipeline", "SlamResult", "StepResult", "run_offline"],
+            "odometry": ["OdometryResult", "VisualOdometry", "make_odometry"],
+            "loop_closure": ["LoopClosureDetector", "LoopHypothesis", "make_loop_closure_detector"],
+            "backend": ["Constraint", "PoseGraph", "make_pose_graph"],
+            "features": ["FeatureExtractor", "Features"],
+            "memory": ["Memory"],
+            "database": ["MapDatabase"],
+            "signature": ["Link", "LinkType", "Signature"],
+            "vocabulary": ["VisualVocabulary"],
+            "node": ["SlamNode", "SlamNodeConfig"],
+        },
+    )

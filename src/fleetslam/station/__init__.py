@@ -18,12 +18,14 @@ if TYPE_CHECKING:
 
 __all__ = ["AgentView", "ConsoleAccess", "StationBridge", "StationServer", "TeleopGate", "TeleopLimits", "VoxelDiff"]
 
-__getattr__, __dir__ = lazy_exports(
-    __name__,
-    {
-        "access": ["ConsoleAccess"],
-        "bridge": ["AgentView", "StationBridge"],
-        "protocol": ["TeleopGate", "TeleopLimits", "VoxelDiff"],
-        "server": ["StationServer"],
-    },
-)
+# Hidden from type checkers, so that a misspelt name is an error there rather than Any.
+if not TYPE_CHECKING:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "access": ["ConsoleAccess"],
+            "bridge": ["AgentView", "StationBridge"],
+            "protocol": ["TeleopGate", "TeleopLimits", "VoxelDiff"],
+            "server": ["StationServer"],
+        },
+    )
