@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.reader import make_reader
 from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
@@ -30,7 +31,7 @@ from fleetslam.datasets.recorded_poses import (
     stamp_seconds,
     static_transforms,
 )
-from fleetslam.errors import DatasetError, MissingExtraError
+from fleetslam.errors import DatasetError
 from fleetslam.trajectory import InterpolatedPose, Trajectory
 
 log = logging.getLogger(__name__)
@@ -43,14 +44,6 @@ def _typestore() -> Any:
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_HUMBLE)
-
-
-def _reader(path: Path) -> Any:
-    try:
-        from mcap.reader import make_reader
-    except ImportError as err:
-        raise MissingExtraError("mcap", "record") from err
-    return make_reader
 
 
 @contextlib.contextmanager
@@ -110,7 +103,6 @@ class McapSource:
         odometry_topics: list[str] = []
         self._tf_static_topics: list[str] = []
         info_topic: str | None = None
-        make_reader = _reader(path)
         with path.open("rb") as f, _unreadable_as_dataset_error(path):
             summary = make_reader(f).get_summary()
         if summary is None:
@@ -147,9 +139,10 @@ class McapSource:
 
     def _raw_messages(self, topics: list[str]) -> Iterator[tuple[str, Callable[[], Any]]]:
         """Messages in log order, each with a function that decodes it (skipped messages cost no decoding)."""
-        make_reader = _reader(self.path)
         with self.path.open("rb") as f, _unreadable_as_dataset_error(self.path):
             for schema, channel, message in make_reader(f).iter_messages(topics=topics):
+                if schema is None:
+                    raise DatasetError(f"{self.path}: the messages on {channel.topic} have no schema")
                 yield channel.topic, partial(self._decode, bytes(message.data), schema.name, channel.topic)
 
     def _decode(self, data: bytes, type_name: str, topic: str) -> Any:

@@ -11,12 +11,14 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
-from fleetslam.errors import DatasetError, MissingExtraError
+from fleetslam.errors import DatasetError
 from fleetslam.trajectory import Trajectory, read_tum
 
 logger = logging.getLogger(__name__)
@@ -145,12 +147,8 @@ def read_intrinsics_file(path: Path, width: int = 640, height: int = 480) -> Int
     raise DatasetError(f"{path}: no intrinsics found")
 
 
-def _cv2():  # type: ignore[no-untyped-def]
-    try:
-        import cv2
-    except ImportError as err:
-        raise MissingExtraError("cv2", "slam") from err
-    return cv2
+def _cv2() -> Any:
+    return require("cv2", "slam")
 
 
 def load_rgb(path: Path) -> NDArray[np.uint8]:

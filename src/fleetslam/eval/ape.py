@@ -13,19 +13,17 @@ from typing import Any, Literal
 
 import numpy as np
 
-from fleetslam.errors import DatasetError, MissingExtraError
+from fleetslam._imports import require
+from fleetslam.errors import DatasetError
 from fleetslam.trajectory import Trajectory
 
 
 def _evo() -> Any:
-    try:
-        import evo.core.geometry
-        import evo.core.metrics
-        import evo.core.sync
-        import evo.core.trajectory
-    except ImportError as err:
-        raise MissingExtraError("evo", "eval") from err
-    return evo
+    require("evo.core.geometry", "eval")
+    require("evo.core.metrics", "eval")
+    require("evo.core.sync", "eval")
+    require("evo.core.trajectory", "eval")
+    return require("evo", "eval")
 
 
 @dataclass
@@ -141,13 +139,8 @@ def plot_ape(
 
     ``others`` adds more estimates by label (e.g. odometry only, a peer system), each aligned on its own.
     """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as err:
-        raise MissingExtraError("matplotlib", "eval") from err
+    require("matplotlib", "eval").use("Agg")
+    plt = require("matplotlib.pyplot", "eval")
     fig, (top, errors) = plt.subplots(1, 2, figsize=(12, 5.5))
     drawn_truth = False
     styles = ["b-", "r-", "g-", "m-", "c-"]

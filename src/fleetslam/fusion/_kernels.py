@@ -12,15 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 from fleetslam.mapping._kernels import EMPTY
 from fleetslam.mapping._table_kernels import table_find
 from fleetslam.mapping.keys import TREE_MAX_VAL
 
-try:
-    from numba import njit
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "mapping") from err
+numba = require("numba", "mapping")
+njit = numba.njit
 
 _MASK = np.uint64(0xFFFF)
 #: A source voxel whose centre lands in a fleet voxel lies, per axis, within half the voxel diagonal (√3/2 of a

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from fleetslam._imports import require
+
+types = require("numba", "mapping").types
+cgutils = require("numba.core.cgutils", "mapping")
+intrinsic = require("numba.extending", "mapping").intrinsic
 
 
 def _fetch_add(typingctx: Any, counters: Any, index: Any, amount: Any) -> Any:

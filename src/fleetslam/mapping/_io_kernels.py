@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 
-try:
-    from numba import njit
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "mapping") from err
+numba = require("numba", "mapping")
+njit = numba.njit
 
 DEPTH = 16
 OK = 0

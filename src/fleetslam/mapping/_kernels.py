@@ -15,14 +15,11 @@ import math
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
+from fleetslam.mapping._atomics import fetch_add
 
-try:
-    from numba import njit, prange
-
-    from fleetslam.mapping._atomics import fetch_add
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "mapping") from err
+numba = require("numba", "mapping")
+njit, prange = numba.njit, numba.prange
 
 TREE_MAX_VAL = 32768
 EMPTY = np.uint64(0xFFFFFFFFFFFFFFFF)

@@ -9,14 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 from fleetslam.mapping._kernels import EMPTY
 from fleetslam.mapping.keys import TREE_DEPTH
 
-try:
-    from numba import njit, prange
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "mapping") from err
+numba = require("numba", "mapping")
+njit, prange = numba.njit, numba.prange
 
 
 @njit(cache=True, inline="always")

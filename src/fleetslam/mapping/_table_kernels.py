@@ -10,13 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 from fleetslam.mapping._kernels import EMPTY
 
-try:
-    from numba import njit
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "mapping") from err
+numba = require("numba", "mapping")
+njit = numba.njit
 
 
 @njit(cache=True, inline="always")

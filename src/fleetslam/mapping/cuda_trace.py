@@ -18,14 +18,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
 from fleetslam.mapping import _kernels as K
 
-try:
-    from numba import cuda
-except ImportError as err:  # pragma: no cover - numba is a dependency of the mapping extra
-    from fleetslam.errors import MissingExtraError
-
-    raise MissingExtraError("numba", "mapping") from err
+cuda = require("numba.cuda", "mapping")
 
 THREADS_PER_BLOCK = 128
 

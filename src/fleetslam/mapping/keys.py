@@ -82,11 +82,6 @@ def unmorton(codes: ArrayLike) -> NDArray[np.uint16]:
     )
 
 
-def node_size(depth: int | NDArray[np.integer], resolution: float) -> NDArray[np.float64] | float:
-    """Edge length of a node at ``depth`` (16 = finest)."""
-    return resolution * np.power(2.0, TREE_DEPTH - np.asarray(depth, dtype=np.float64))
-
-
 def node_centers(keys: ArrayLike, depths: ArrayLike, resolution: float) -> NDArray[np.float64]:
     """Centres of nodes given their min-corner finest keys and depths."""
     k = np.asarray(keys, dtype=np.float64).reshape(-1, 3)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.mapping.keys import TREE_DEPTH, morton
+from fleetslam.mapping.keys import morton
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,3 @@ class LeafArrays:
             np.asarray(depths, dtype=np.uint8)[order],
             np.asarray(log_odds, dtype=np.float32)[order],
         )
-
-    @property
-    def is_finest(self) -> NDArray[np.bool_]:
-        return self.depths == TREE_DEPTH

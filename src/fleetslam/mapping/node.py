@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
+from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.geometry import quat_to_matrix
@@ -71,8 +72,7 @@ def decode_depth(msg: Any) -> np.ndarray | None:
     """Depth in metres of a Keyframe's compressed depth image (None when omitted)."""
     if msg.depth_format != "png16_mm" or len(msg.depth) == 0:
         return None
-    import cv2
-
+    cv2 = require("cv2", "mapping")
     image = cv2.imdecode(np.frombuffer(bytes(msg.depth), np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.dtype != np.uint16:
         raise ValueError("depth is not a 16-bit PNG")

@@ -187,16 +187,6 @@ def write_bt(
     return count
 
 
-def write_bt_const(
-    target: str | Path | BinaryIO, resolution: float, leaves: LeafArrays, *, occupancy_threshold_log_odds: float = 0.0
-) -> int:
-    """What C++ writeBinaryConst() writes: the tree as it is, leaves classified by the threshold; returns the
-    number of nodes written."""
-    body, count = _encode(leaves, occupancy_threshold_log_odds, full=False)
-    _write(target, _header(BT_HEADER, count, resolution), body)
-    return count
-
-
 def write_ot(target: str | Path | BinaryIO, resolution: float, leaves: LeafArrays) -> int:
     """A full `.ot` file of the tree as it is (inner nodes hold the max of their children); returns the number
     of nodes written."""

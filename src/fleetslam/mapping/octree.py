@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fleetslam._imports import require
 from fleetslam.errors import MapFileError
 from fleetslam.mapping import _kernels as K
 from fleetslam.mapping import _prune_kernels as P
@@ -39,6 +39,7 @@ from fleetslam.mapping.keys import (
 from fleetslam.mapping.leaves import LeafArrays
 from fleetslam.mapping.raycast import cast_ray, scan_keys
 
+numba = require("numba", "mapping")
 log = logging.getLogger(__name__)
 
 #: Largest fill of the voxel table, LOAD_NUM / LOAD_DEN, before it doubles. 5/8 rather than 1/2: the table takes
@@ -52,6 +53,7 @@ def logodds(probability: float) -> np.float32:
 
 
 def probability(log_odds: ArrayLike) -> NDArray[np.float64]:
+    """Occupancy probability of log-odds values (OctoMap's probability()), in float64."""
     return 1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))
 
 
@@ -465,21 +467,13 @@ class OccupancyOctree:
         return self._centers(False)
 
     def metric_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Min and max corner of all known space."""
+        """Min and max corner of all known space (OctoMap's getMetricMin and getMetricMax; zeros for an empty tree)."""
         leaves = self.leaves()
         if len(leaves) == 0:
             return np.zeros(3), np.zeros(3)
         size = np.power(2.0, TREE_DEPTH - leaves.depths.astype(np.float64))[:, None]
         lo = (leaves.keys.astype(np.float64) - TREE_MAX_VAL) * self.resolution
         return lo.min(axis=0), (lo + size * self.resolution).max(axis=0)
-
-    def metric_min(self) -> NDArray[np.float64]:
-        """Min corner of all known space (OctoMap's getMetricMin; zeros for an empty tree)."""
-        return self.metric_bounds()[0]
-
-    def metric_max(self) -> NDArray[np.float64]:
-        """Max corner of all known space (OctoMap's getMetricMax; zeros for an empty tree)."""
-        return self.metric_bounds()[1]
 
     def pop_changed_keys(self) -> NDArray[np.uint16]:
         """Finest keys ``(K, 3)`` of the voxels whose value changed since the last pop (for incremental viewers)."""
@@ -607,19 +601,6 @@ def _cuda_available() -> bool:
     from fleetslam.mapping.cuda_trace import cuda_available
 
     return cuda_available()
-
-
-def canonical_leaves(leaves: LeafArrays) -> tuple[LeafArrays, int]:
-    """Canonical pruning of any leaf set: (pruned leaves in pre-order, number of inner nodes)."""
-    fine = leaves.depths == TREE_DEPTH
-    coarse_depths = leaves.depths[~fine].astype(np.int64)
-    shifts = (TREE_DEPTH - coarse_depths).astype(np.uint64)[:, None]
-    coarse_codes = pack(leaves.keys[~fine].astype(np.uint64) >> shifts) if (~fine).any() else np.zeros(0, np.uint64)
-    structure = _collapse(
-        morton(leaves.keys[fine]), np.asarray(leaves.log_odds[fine], np.float32), coarse_depths, coarse_codes,
-        leaves.log_odds[~fine],
-    )  # fmt: skip
-    return structure.leaves, structure.inner_count
 
 
 def _collapse(

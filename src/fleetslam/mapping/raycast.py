@@ -9,12 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fleetslam._imports import require
 from fleetslam.mapping import _kernels as K
 from fleetslam.mapping.keys import TREE_MAX_VAL, coords_to_keys, unpack
+
+numba = require("numba", "mapping")
 
 #: Largest scan-local dense grid (cells = bytes); bigger scans deduplicate by sorting instead.
 MAX_GRID_CELLS = 256 * 1024 * 1024

@@ -87,12 +87,12 @@ def _octomap_rotate(q: NDArray[np.float32], v: NDArray[np.float32]) -> NDArray[n
     u, x, y, z = (np.float32(c) for c in q)
     vx, vy, vz = (v[:, i].astype(np.float32) for i in range(3))
     zero = np.float32(0.0)
-    # t = q * (0, v)
+    # t is the product q · (0, v)
     tu = u * zero - x * vx - y * vy - z * vz
     tx = y * vz - vy * z + u * vx + zero * x
     ty = z * vx - vz * x + u * vy + zero * y
     tz = x * vy - vx * y + u * vz + zero * z
-    # r = t * (u, -x, -y, -z)
+    # r is the product t · (u, -x, -y, -z): t times the conjugate of q
     ix, iy, iz = -x, -y, -z
     rx = ty * iz - iy * tz + tu * ix + u * tx
     ry = tz * ix - iz * tx + tu * iy + u * ty

@@ -144,11 +144,6 @@ class Autopilot:
         lap after lap (an open route is driven once whatever ``cyclic`` says)."""
         return cls(route.in_world(start), cyclic=cyclic and route.closed, **options)
 
-    @property
-    def segment(self) -> int:
-        """Index of the path segment the robot is on (progress along the route)."""
-        return self._segment
-
     def _next_lap(self) -> None:
         """Cyclic routes: keep at least one lap ahead of the robot, and forget the lap behind it."""
         lap = len(self._lap) - 1

@@ -15,7 +15,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-from fleetslam.errors import FleetslamError, MissingExtraError
+from fleetslam._imports import require
+from fleetslam.errors import FleetslamError
 from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.typesys import get_type, header
 from fleetslam.robot.teleop import KEYBOARD_HELP, CommandGate, JoyPreset, JoyTeleop, KeyboardTeleop
@@ -110,11 +111,7 @@ def _import_pygame() -> Any:
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-    try:
-        import pygame
-    except ImportError as err:
-        raise MissingExtraError("pygame", "teleop") from err
-    return pygame
+    return require("pygame", "teleop")
 
 
 def run_joystick(

@@ -18,8 +18,9 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
 from fleetslam.config import dump_config
-from fleetslam.errors import DatasetError, MissingExtraError, SimulationError
+from fleetslam.errors import DatasetError, SimulationError
 from fleetslam.geometry import pose_from_planar
 from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.sim.camera import CameraIntrinsics
@@ -96,10 +97,7 @@ def export_tum(
     simulated seconds. Only the exported robot is placed in the plant; it stands still for ``settle`` seconds
     before the first frame (stamps are simulated time, so they start at ``settle``).
     """
-    try:
-        import cv2
-    except ImportError as err:
-        raise MissingExtraError("opencv-python-headless", "slam") from err
+    cv2 = require("cv2", "sim")
     from tqdm import tqdm
 
     cfg = config if config is not None else SimConfig()

@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.errors import MissingExtraError, SimulationError
-from fleetslam.geometry import invert, make_pose, pose_from_planar, yaw_of
+from fleetslam._imports import require
+from fleetslam.errors import SimulationError
+from fleetslam.geometry import invert, make_pose, yaw_of
 from fleetslam.robot.controller import BaseController, ControllerOutput
 from fleetslam.sim.camera import CameraIntrinsics, KinectModel, intrinsics_from_config, kinect_from_config
 from fleetslam.sim.config import RobotPlacement, SimConfig
@@ -37,11 +38,7 @@ ROBOT_COLORS = ((0.85, 0.65, 0.1), (0.2, 0.45, 0.85), (0.75, 0.2, 0.2), (0.3, 0.
 def import_mujoco() -> Any:
     """Import MuJoCo, selecting a headless GL backend (EGL) unless one was chosen."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        import mujoco
-    except ImportError as err:
-        raise MissingExtraError("mujoco", "sim") from err
-    return mujoco
+    return require("mujoco", "sim")
 
 
 @dataclass(frozen=True)
@@ -250,11 +247,6 @@ class Plant:
         vel = np.zeros(6)
         self._mujoco.mj_objectVelocity(self.model, self.data, self._mujoco.mjtObj.mjOBJ_XBODY, robot.body_id, vel, 1)
         return vel[3:].copy(), vel[:3].copy()
-
-    def start_pose(self, name: str) -> NDArray[np.float64]:
-        """T_world_base_link of the configured start pose."""
-        p = self.robot(name).placement
-        return pose_from_planar(p.x, p.y, p.yaw)
 
     # -- rendering --------------------------------------------------------------------------------------
     def _renderer(self, width: int, height: int) -> RGBDRenderer:

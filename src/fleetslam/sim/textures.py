@@ -12,6 +12,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
+
 Image = NDArray[np.uint8]
 
 
@@ -202,8 +204,9 @@ photographed: brick, gravel, grass; real scenes on the posters). ``plain`` stays
 def photograph(kind: str, rng: np.random.Generator, size: int) -> Image:
     """A real photograph (scikit-image's bundled samples, no download) for a surface of the given kind, resampled
     to ``size``² RGB. Raises ImportError without scikit-image."""
-    import cv2
     from skimage import data
+
+    cv2 = require("cv2", "sim")
 
     image = np.asarray(getattr(data, PHOTOGRAPHS[kind][int(rng.integers(len(PHOTOGRAPHS[kind])))])())
     if image.ndim == 2:

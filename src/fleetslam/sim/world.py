@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 from fleetslam.sim import textures
 from fleetslam.sim.config import WorldConfig
 
@@ -143,10 +143,7 @@ class WorldBuilder:
 
 def encode_png(image: np.ndarray) -> bytes:
     """PNG bytes of an RGB uint8 image."""
-    try:
-        import cv2
-    except ImportError as err:
-        raise MissingExtraError("opencv-python-headless", "slam") from err
+    cv2 = require("cv2", "sim")
     ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
     if not ok:
         raise ValueError("PNG encoding failed")

@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 
-try:
-    import llvmlite.ir as llvm_ir
-    from numba import njit, types
-    from numba.extending import intrinsic
-except ImportError as err:  # pragma: no cover - exercised only without the extra
-    raise MissingExtraError("numba", "slam") from err
+numba = require("numba", "slam")
+njit, types = numba.njit, numba.types
+intrinsic = require("numba.extending", "slam").intrinsic
+llvm_ir = require("llvmlite.ir", "slam")
 
 #: Distance returned as the second nearest when there is only one word.
 NO_SECOND = 1 << 30

@@ -20,17 +20,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.errors import MissingExtraError, SlamError
+from fleetslam._imports import require
+from fleetslam.errors import SlamError
 
 logger = logging.getLogger(__name__)
 
 
 def _gtsam() -> Any:
-    try:
-        import gtsam
-    except ImportError as err:
-        raise MissingExtraError("gtsam", "slam") from err
-    return gtsam
+    return require("gtsam", "slam")
 
 
 def information_from_std(translation_std: float, rotation_std_rad: float) -> NDArray[np.float64]:

@@ -8,16 +8,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 
 
 def import_cv2() -> Any:
-    """OpenCV, or a MissingExtraError naming the extra."""
-    try:
-        import cv2
-    except ImportError as err:
-        raise MissingExtraError("cv2", "slam") from err
-    return cv2
+    """OpenCV, or a MissingExtraError naming the ``slam`` extra."""
+    return require("cv2", "slam")
 
 
 @dataclass

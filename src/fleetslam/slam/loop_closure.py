@@ -11,7 +11,7 @@ The pipeline calls :meth:`LoopClosureDetector.process` once per keyframe::
     # between hyp.match_id and hyp.query_id with hyp.transform (T_match_query) and
     # detector.memory.signatures[hyp.match_id].links[hyp.query_id].information.
     # At the end of the run:  with MapDatabase(out / "map.db") as db: detector.memory.save(db)
-    # Next session:           with MapDatabase(path) as db: mem = load_memory(db, cfg.loop_closure, cfg.memory)
+    # Next session:           with MapDatabase(path) as db: mem = Memory.load(db, new_session=True, ...)
     #                         detector = make_loop_closure_detector(..., existing_memory=mem)
 
 Per keyframe: add the location to memory (vocabulary, rehearsal, STM -> WM), score it against the WM
@@ -34,7 +34,6 @@ from numpy.typing import ArrayLike, NDArray
 from fleetslam.errors import MissingExtraError, SlamError
 from fleetslam.geometry import invert, make_pose, planar_camera_pose, rotation_angle
 from fleetslam.slam.bayes_filter import VIRTUAL_PLACE, BayesFilter, adjust_likelihood
-from fleetslam.slam.database import MapDatabase
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.matching import match_mutual
 from fleetslam.slam.memory import Memory
@@ -359,24 +358,6 @@ class LoopClosureDetector:
             transferred=transferred,
             elapsed_ms=elapsed_ms,
         )
-
-
-def load_memory(
-    database: MapDatabase, loop: LoopClosureConfig, memory: MemoryConfig, new_session: bool = True
-) -> Memory:
-    """The memory stored in ``database`` configured like a new one (pass it to ``existing_memory``)."""
-    return Memory.load(
-        database,
-        nndr_ratio=loop.nndr_ratio,
-        max_distance=loop.max_word_distance,
-        new_session=new_session,
-        stm_size=memory.stm_size,
-        rehearsal_similarity=memory.rehearsal_similarity,
-        max_wm_size=memory.max_wm_size,
-        max_retrieved=memory.max_retrieved,
-        keep_images=memory.keep_images,
-        max_words=loop.max_words,
-    )
 
 
 def make_loop_closure_detector(

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
+from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
 from fleetslam.errors import UnsafePathError
@@ -428,8 +429,7 @@ class SlamNode:
         return words.astype(np.uint32), weights.astype(np.float32)
 
     def publish_keyframe(self, stamp_ns: int, step: StepResult, frame: RGBDFrame) -> None:
-        import cv2
-
+        cv2 = require("cv2", "slam")
         ok_rgb, jpeg = cv2.imencode(
             ".jpg", np.ascontiguousarray(frame.rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, self.config.jpeg_quality]
         )

@@ -86,14 +86,6 @@ class Signature:
             raise ValueError(f"link {link.from_id}->{link.to_id} does not start at location {self.id}")
         self.links[link.to_id] = link
 
-    def neighbor_ids(self) -> list[int]:
-        """Ids linked by odometry links."""
-        return sorted(j for j, link in self.links.items() if link.type == LinkType.ODOMETRY)
-
-    def loop_ids(self) -> list[int]:
-        """Ids linked by loop-closure links (intra- or inter-session)."""
-        return sorted(j for j, link in self.links.items() if link.type != LinkType.ODOMETRY)
-
 
 def word_set_similarity(a: Signature, b: Signature) -> float:
     """Rehearsal similarity: words common to both (counted with multiplicity) over the larger word count.

@@ -23,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam._imports import require
 from fleetslam.errors import SlamError
 
 DescriptorKind = Literal["binary", "float"]
@@ -273,8 +274,7 @@ class VisualVocabulary:
     def _nearest2_opencv(
         desc: NDArray[Any], ids: NDArray[np.int64], data: NDArray[Any]
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        import cv2
-
+        cv2 = require("cv2", "slam")
         dist, index = cv2.batchDistance(desc, data, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
         distances = np.asarray(dist, dtype=np.float64)
         nearest = np.asarray(ids[np.asarray(index)[:, 0]], dtype=np.int64)
@@ -316,13 +316,6 @@ class VisualVocabulary:
     def references(self, word_id: int) -> dict[int, int]:
         """Locations referencing a word: location id -> occurrences (empty if none)."""
         return self._references.get(int(word_id), {})
-
-    def replace_references(self, old_id: int, new_id: int, word_ids: Iterable[int]) -> None:
-        """Move references of a location to another id (used when locations are merged)."""
-        for word in {int(w) for w in word_ids if w >= 0}:
-            refs = self._references.get(word)
-            if refs is not None and old_id in refs:
-                refs[new_id] = refs.get(new_id, 0) + refs.pop(old_id)
 
     # ------------------------------------------------------------------ persistence helpers
     @classmethod

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fleetslam.errors import MissingExtraError
+from fleetslam._imports import require
 from fleetslam.middleware import Context
 from fleetslam.station.access import ConsoleAccess
 from fleetslam.station.bridge import StationBridge
@@ -58,10 +58,7 @@ class StationServer:
         teleop_rate_hz: float = 20.0,
         access: ConsoleAccess | None = None,
     ) -> None:
-        try:
-            import aiohttp  # noqa: F401
-        except ImportError as err:
-            raise MissingExtraError("aiohttp", "station") from err
+        require("aiohttp", "station")
         self.host, self.port = host, port
         self.limits = limits or TeleopLimits()
         self.teleop_period = 1.0 / teleop_rate_hz
