@@ -21,10 +21,11 @@ from fleetslam.config import ConfigModel
 from fleetslam.errors import UnsafePathError
 from fleetslam.fusion.fleet_map import FleetMap
 from fleetslam.geometry import pose_from_xyz_rpy
-from fleetslam.mapping.node import PublishPacer, pointcloud2_msg
+from fleetslam.mapping.node import PublishPacer
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
 from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.msg.conversions import pointcloud2_msg
+from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
@@ -127,11 +128,12 @@ class FleetMapNode:
         """The fused map to whoever subscribes, if it changed since it was last published to them; whether it
         was published."""
         fused = self.fleet.fused()
-        stamp = header(self.config.frame_id, self.node.now_ns())
+        now_ns = self.node.now_ns()
+        stamp = header(self.config.frame_id, now_ns)
         published = False
         if self._published["occupied"] != self._version and self.cloud_pub.matched_subscriptions:
             centres, _ = fused.occupied_centers()
-            self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
+            self.cloud_pub.publish(pointcloud2_msg(centres, frame_id=self.config.frame_id, stamp_ns=now_ns))
             self._published["occupied"] = self._version
             published = True
         if self._published["octomap"] != self._version and self.octomap_pub.matched_subscriptions:

@@ -219,7 +219,7 @@ def odometry_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
 
 
 def _decoded_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
-    from fleetslam.middleware.typesys import deserialize, ns_from_stamp
+    from fleetslam.msg.typesys import deserialize, ns_from_stamp
 
     msg = deserialize(data, "nav_msgs/msg/Odometry")
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -290,7 +290,7 @@ class _Monitor:
             )  # fmt: skip
 
     def _on_statistics(self, data: bytes, info: Any) -> None:
-        from fleetslam.middleware.typesys import deserialize
+        from fleetslam.msg.typesys import deserialize
 
         msg = deserialize(data, info.type_name)
         with self.lock:
@@ -318,7 +318,7 @@ class _Monitor:
 
     def slam_diagnostics(self) -> dict[str, dict[str, str]]:
         """The values of each robot's latest ``slam`` diagnostics status (robots that sent none are absent)."""
-        from fleetslam.middleware.typesys import deserialize
+        from fleetslam.msg.typesys import deserialize
 
         with self.lock:
             latest = dict(self._diagnostics)
@@ -448,7 +448,7 @@ def run_demo(
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
     """Ask every map node to save its map as ``<name>.bt`` in its maps directory (the demo's ``maps/``)."""
-    from fleetslam.middleware.typesys import get_type
+    from fleetslam.msg.typesys import get_type
 
     request = get_type("fleetslam_msgs/srv/SaveMap_Request")
     for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:

@@ -28,10 +28,10 @@ from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
-from fleetslam.mapping.products import cube_list_markers, pointcloud2_fields_and_data, project_occupancy_grid
+from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
 from fleetslam.middleware import Node, Publisher, QoSProfile
-from fleetslam.middleware.conversions import pose_matrix
-from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix
+from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
@@ -79,18 +79,6 @@ def decode_depth(msg: Any) -> np.ndarray | None:
     depth = image.astype(np.float32) / 1000.0
     depth[image == 0] = np.nan
     return depth
-
-
-def pointcloud2_msg(points: np.ndarray, stamp_header: Any) -> Any:
-    """sensor_msgs/msg/PointCloud2 of ``(N, 3)`` points as float32 x, y, z."""
-    fields, step, data = pointcloud2_fields_and_data(points)
-    field_type = get_type("sensor_msgs/msg/PointField")
-    return get_type("sensor_msgs/msg/PointCloud2")(
-        header=stamp_header, height=1, width=len(points),
-        fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
-        is_bigendian=False, point_step=step, row_step=step * len(points),
-        data=np.frombuffer(data, np.uint8), is_dense=True,
-    )  # fmt: skip
 
 
 class PublishPacer:
@@ -232,7 +220,7 @@ class MappingNode:
         return self._centres[1], self._centres[2]
 
     def _cloud(self, stamp: Any) -> Any:
-        return pointcloud2_msg(self._occupied()[0], stamp)
+        return pointcloud2_msg(self._occupied()[0], frame_id=stamp.frame_id, stamp_ns=ns_from_stamp(stamp.stamp))
 
     def _markers(self, stamp: Any) -> Any:
         centres, sizes = self._occupied()

@@ -8,7 +8,7 @@ import threading
 from typing import Any
 
 from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.msg.typesys import ns_from_stamp
 from fleetslam.robot.autopilot import Autopilot, Route
 from fleetslam.robot.teleop import CommandGate
 from fleetslam.robot.teleop_node import TwistPublisher

@@ -16,7 +16,6 @@ service ``e_stop`` std_srvs/srv/SetBool (true engages, false releases).
 from __future__ import annotations
 
 import logging
-import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -24,8 +23,9 @@ from typing import Any
 import numpy as np
 
 from fleetslam.middleware import MessageInfo, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, ns_from_stamp
 from fleetslam.middleware.wire import EntityKind, LivelinessToken
+from fleetslam.msg.conversions import odometry_msg, planar_pose_msg, tf_msg
+from fleetslam.msg.typesys import get_type, header, ns_from_stamp
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.controller import BaseController, ControllerOutput
 from fleetslam.robot.interfaces import WheelInterface
@@ -69,18 +69,7 @@ class BaseControllerNode:
         self._types = {
             name: get_type(name)
             for name in (
-                "nav_msgs/msg/Odometry",
-                "geometry_msgs/msg/PoseWithCovariance",
-                "geometry_msgs/msg/TwistWithCovariance",
-                "geometry_msgs/msg/Pose",
-                "geometry_msgs/msg/Point",
-                "geometry_msgs/msg/Quaternion",
-                "geometry_msgs/msg/Twist",
-                "geometry_msgs/msg/Vector3",
-                "geometry_msgs/msg/Transform",
-                "geometry_msgs/msg/TransformStamped",
                 "sensor_msgs/msg/JointState",
-                "tf2_msgs/msg/TFMessage",
                 "std_srvs/srv/SetBool_Response",
             )
         }
@@ -163,24 +152,12 @@ class BaseControllerNode:
         t = self._types
         stamp_ns = round(now * 1e9)
         odom = output.odometry
-        quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(odom.theta / 2), w=math.cos(odom.theta / 2))
-        vec3 = t["geometry_msgs/msg/Vector3"]
-        msg = t["nav_msgs/msg/Odometry"](
-            header=header(self.odom_frame, stamp_ns),
-            child_frame_id=self.base_frame,
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                pose=t["geometry_msgs/msg/Pose"](
-                    position=t["geometry_msgs/msg/Point"](x=odom.x, y=odom.y, z=0.0), orientation=quat
-                ),
-                covariance=np.ascontiguousarray(odom.pose_covariance, dtype=np.float64).reshape(36),
-            ),
-            twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=t["geometry_msgs/msg/Twist"](
-                    linear=vec3(x=odom.v, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=odom.omega)
-                ),
-                covariance=np.ascontiguousarray(odom.twist_covariance, dtype=np.float64).reshape(36),
-            ),
-        )
+        pose = planar_pose_msg(odom.x, odom.y, odom.theta)
+        msg = odometry_msg(
+            pose, frame_id=self.odom_frame, child_frame_id=self.base_frame, stamp_ns=stamp_ns,
+            linear=(odom.v, 0.0, 0.0), angular=(0.0, 0.0, odom.omega),
+            pose_covariance=odom.pose_covariance, twist_covariance=odom.twist_covariance,
+        )  # fmt: skip
         self.odom_pub.publish(msg)
         self.joint_pub.publish(
             t["sensor_msgs/msg/JointState"](
@@ -192,9 +169,4 @@ class BaseControllerNode:
             )
         )
         if self.tf_pub is not None:
-            transform = t["geometry_msgs/msg/TransformStamped"](
-                header=header(self.odom_frame, stamp_ns),
-                child_frame_id=self.base_frame,
-                transform=t["geometry_msgs/msg/Transform"](translation=vec3(x=odom.x, y=odom.y, z=0.0), rotation=quat),
-            )
-            self.tf_pub.publish(t["tf2_msgs/msg/TFMessage"](transforms=[transform]))
+            self.tf_pub.publish(tf_msg(pose, self.odom_frame, self.base_frame, stamp_ns))

@@ -17,7 +17,7 @@ from typing import Any, TextIO
 
 from fleetslam.errors import FleetslamError, MissingExtraError
 from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header
+from fleetslam.msg.typesys import get_type, header
 from fleetslam.robot.teleop import KEYBOARD_HELP, CommandGate, JoyPreset, JoyTeleop, KeyboardTeleop
 
 log = logging.getLogger(__name__)

@@ -21,8 +21,9 @@ import numpy as np
 from fleetslam.errors import MessageError
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.middleware.typesys import deserialize, get_type
-from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, pointcloud2_xyz, yaw_from_quaternion
+from fleetslam.msg.conversions import depth_from_image, image_to_array, pointcloud2_xyz, rgb_from_image
+from fleetslam.msg.typesys import deserialize, get_type
+from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +135,12 @@ class StationBridge:
         return lambda payload: self._on_image(view, kind, payload)
 
     def _on_cloud(self, view: AgentView, msg: Any) -> None:
-        points = pointcloud2_xyz(msg)
+        try:
+            xyz = pointcloud2_xyz(msg)
+        except MessageError as err:
+            log.warning("%s point cloud: %s", view.name, err)
+            return
+        points = xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64)
         added, removed = view.voxels.update(points)
         if len(added) or len(removed):
             self.emit(
@@ -251,30 +257,22 @@ class StationBridge:
 
 
 def encode_image(msg: Any, kind: str) -> tuple[str, bytes]:
-    """JPEG of an rgb8/bgr8/mono8 image, or a colour-mapped JPEG of a 32FC1 (m) / 16UC1 (mm) depth image."""
+    """JPEG of an rgb8/bgr8/rgba8/bgra8/mono8 image, or a colour-mapped JPEG of a 32FC1 (m) / 16UC1 (mm) depth
+    image (rows decoded with their ``step`` and byte order)."""
     import cv2
 
-    height, width, encoding = int(msg.height), int(msg.width), msg.encoding
-    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     image: Any
-    if encoding in ("rgb8", "bgr8"):
-        image = raw[: height * width * 3].reshape(height, width, 3)
-        if encoding == "rgb8":
-            image = image[:, :, ::-1]
-    elif encoding == "mono8":
-        image = raw[: height * width].reshape(height, width)
-    elif encoding in ("32FC1", "16UC1"):
-        if encoding == "32FC1":
-            depth = raw[: height * width * 4].view(np.float32).reshape(height, width)
-        else:
-            depth = raw[: height * width * 2].view(np.uint16).reshape(height, width).astype(np.float32) / 1000.0
-        valid = np.isfinite(depth) & (depth > 0)
-        scaled = np.zeros((height, width), dtype=np.uint8)
+    if msg.encoding in ("32FC1", "16UC1", "mono16"):
+        depth = depth_from_image(msg)
+        valid = depth > 0
+        scaled = np.zeros(depth.shape, dtype=np.uint8)
         scaled[valid] = np.clip(255.0 * (1.0 - np.clip(depth[valid], 0.0, 5.0) / 5.0), 1, 255).astype(np.uint8)
         image = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
         image[~valid] = 0
+    elif msg.encoding == "mono8":
+        image = image_to_array(msg)
     else:
-        raise ValueError(f"unsupported image encoding {encoding!r}")
+        image = rgb_from_image(msg)[:, :, ::-1]  # OpenCV writes BGR
     ok, buffer = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, 80])
     if not ok:
         raise ValueError("JPEG encoding failed")
