@@ -33,10 +33,11 @@ from fleetslam.geometry import quat_to_matrix
 from fleetslam.launch.description import ProcessSpec, RestartPolicy
 from fleetslam.launch.router_process import RouterProcess, accepts_connections
 from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
 from fleetslam.station.access import new_token
+from fleetslam.topics import GRAPH, GROUND_TRUTH_ODOM, ODOM, SLAM_DIAGNOSTICS, SLAM_ODOM, STATISTICS, Topic
 
 log = logging.getLogger(__name__)
 
@@ -271,22 +272,21 @@ class _Monitor:
         self.lock = threading.Lock()
         self.writer = BagWriter(recording) if recording is not None else None
         self.node.create_subscription(
-            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000), raw=True
+            STATISTICS.type, STATISTICS.name, self._on_statistics, STATISTICS.qos(depth=1000), raw=True
         )
-        odometry = "nav_msgs/msg/Odometry"
         for robot in robots:
-            topics: list[tuple[str, str, _OdometryTrack | None]] = [
-                (odometry, "slam/odom", self.tracks[f"{robot}/slam"]),
-                (odometry, "ground_truth/odom", self.tracks[f"{robot}/truth"]),
+            followed: list[tuple[Topic, _OdometryTrack | None]] = [
+                (SLAM_ODOM, self.tracks[f"{robot}/slam"]),
+                (GROUND_TRUTH_ODOM, self.tracks[f"{robot}/truth"]),
             ]
             if self.writer is not None:  # recorded only
-                topics += [(odometry, "odom", None), ("fleetslam_msgs/msg/KeyframeGraph", "graph", None)]
-            for type_name, topic, track in topics:
-                self.node.create_subscription(type_name, f"/{robot}/{topic}", partial(self._on_sample, track),
-                                              QoSProfile(depth=100), raw=True)  # fmt: skip
+                followed += [(ODOM, None), (GRAPH, None)]
+            for topic, track in followed:
+                self.node.create_subscription(topic.type, topic.of(robot), partial(self._on_sample, track),
+                                              topic.qos(depth=100), raw=True)  # fmt: skip
             self.node.create_subscription(
-                "diagnostic_msgs/msg/DiagnosticArray", f"/{robot}/slam/diagnostics",
-                partial(self._on_diagnostics, robot), QoSProfile(depth=1), raw=True,
+                SLAM_DIAGNOSTICS.type, SLAM_DIAGNOSTICS.of(robot), partial(self._on_diagnostics, robot),
+                SLAM_DIAGNOSTICS.qos(depth=1), raw=True,
             )  # fmt: skip
 
     def _on_statistics(self, data: bytes, info: Any) -> None:

@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node
 from fleetslam.msg.conversions import odometry_msg, planar_pose_msg, pointcloud2_msg
 from fleetslam.msg.typesys import header, message_from_dict
+from fleetslam.topics import GRAPH, MAP_OCCUPIED, ODOM
 
 log = logging.getLogger(__name__)
 
@@ -63,10 +64,10 @@ def run_agent(
             received[msg.agent] = received.get(msg.agent, 0) + 1
 
         for peer in peers:
-            node.create_subscription("fleetslam_msgs/msg/KeyframeGraph", f"/{peer}/graph", on_peer_graph)
-        graph_pub = node.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
-        odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=5))
-        map_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", QoSProfile(depth=1))
+            node.create_subscription(GRAPH.type, GRAPH.of(peer), on_peer_graph, GRAPH.qos())
+        graph_pub, odom_pub, map_pub = (
+            node.create_publisher(topic.type, topic.name, topic.qos()) for topic in (GRAPH, ODOM, MAP_OCCUPIED)
+        )
         start = time.monotonic()
         keyframes: list[tuple[float, float, float]] = []
         tick = 0

@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from fleetslam.middleware import MessageInfo, Node, QoSProfile
+from fleetslam import topics
+from fleetslam.middleware import MessageInfo, Node
 from fleetslam.middleware.wire import EntityKind, LivelinessToken
 from fleetslam.msg.conversions import odometry_msg, planar_pose_msg, tf_msg
 from fleetslam.msg.typesys import get_type, header, ns_from_stamp
@@ -73,13 +74,11 @@ class BaseControllerNode:
                 "std_srvs/srv/SetBool_Response",
             )
         }
-        self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=10))
-        self.joint_pub = node.create_publisher("sensor_msgs/msg/JointState", "joint_states", QoSProfile(depth=10))
-        self.tf_pub = (
-            node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=100))
-            if self.config.publish_tf
-            else None
-        )
+        odom, joints, tf = topics.ODOM, topics.JOINT_STATES, topics.TF
+        self.odom_pub = node.create_publisher(odom.type, odom.name, odom.qos())
+        self.joint_pub = node.create_publisher(joints.type, joints.name, joints.qos())
+        # A deeper queue than the contract's: odometry at 50 Hz and tf with it, not to be dropped in a burst.
+        self.tf_pub = node.create_publisher(tf.type, tf.name, tf.qos(depth=100)) if self.config.publish_tf else None
         self.last_external_command: float | None = None
         """Clock time of the last accepted `cmd_vel` (an operator or another node driving the robot)."""
         self._commander: bytes | None = None
@@ -88,10 +87,8 @@ class BaseControllerNode:
         """Times the commanding publisher's liveliness disappeared while it was driving, and the base braked."""
         node.context.graph.add_listener(self._on_graph_change)
         node.add_on_destroy(lambda: node.context.graph.remove_listener(self._on_graph_change))
-        node.create_subscription("geometry_msgs/msg/Twist", "cmd_vel", self._on_twist, QoSProfile(depth=1))
-        node.create_subscription(
-            "geometry_msgs/msg/TwistStamped", "cmd_vel", self._on_twist_stamped, QoSProfile(depth=1)
-        )
+        for command, callback in ((topics.CMD_VEL, self._on_twist), (topics.CMD_VEL_STAMPED, self._on_twist_stamped)):
+            node.create_subscription(command.type, command.name, callback, command.qos(depth=1))
         node.create_service("std_srvs/srv/SetBool", "e_stop", self._on_estop)
         self.timer = node.create_timer(1.0 / self.config.control_rate, self._on_timer) if run_timer else None
 

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam import topics
+from fleetslam.middleware import Context, Node, Publisher
 from fleetslam.msg.conversions import camera_info_msg, image_msg, odometry_msg, pose_msg, transform_msg
 from fleetslam.msg.typesys import get_type, stamp_from_ns
 from fleetslam.robot.autopilot import Autopilot, get_route
@@ -42,6 +43,10 @@ def image_msgs(frame: RGBDFrame, frame_id: str) -> tuple[Any, Any]:
         image_msg(frame.rgb, "rgb8", frame_id=frame_id, stamp_ns=stamp_ns),
         image_msg(frame.depth, "32FC1", frame_id=frame_id, stamp_ns=stamp_ns),
     )
+
+
+def _publisher(node: Node, topic: topics.Topic) -> Publisher:
+    return node.create_publisher(topic.type, topic.name, topic.qos())
 
 
 @dataclass
@@ -92,7 +97,7 @@ class SimNode:
         self.intrinsics = plant.intrinsics_at(self.width, self.height)
         self.rate = rate
         self.sim_node = Node("sim", context=context, namespace="/", statistics_period_s=0)
-        self.clock_pub = self.sim_node.create_publisher("rosgraph_msgs/msg/Clock", "/clock", QoSProfile(depth=1))
+        self.clock_pub = _publisher(self.sim_node, topics.CLOCK)
         route = get_route(autopilot) if autopilot else None
         self.robots: dict[str, _RobotIo] = {}
         self._static_tf: list[Any] = []
@@ -101,22 +106,17 @@ class SimNode:
             base = BaseControllerNode(
                 node, plant.wheels(name), config=plant.config.robot, clock=lambda: plant.sim_time, run_timer=False
             )
-            sensor_qos = QoSProfile(depth=2)
             self.robots[name] = _RobotIo(
                 node=node,
                 base=base,
-                rgb_pub=node.create_publisher("sensor_msgs/msg/Image", "camera/rgb/image_raw", sensor_qos),
-                depth_pub=node.create_publisher("sensor_msgs/msg/Image", "camera/depth/image_raw", sensor_qos),
-                rgb_info_pub=node.create_publisher("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", sensor_qos),
-                depth_info_pub=node.create_publisher(
-                    "sensor_msgs/msg/CameraInfo", "camera/depth/camera_info", sensor_qos
-                ),
-                truth_pub=node.create_publisher("nav_msgs/msg/Odometry", "ground_truth/odom", QoSProfile(depth=10)),
+                rgb_pub=_publisher(node, topics.RGB_IMAGE),
+                depth_pub=_publisher(node, topics.DEPTH_IMAGE),
+                rgb_info_pub=_publisher(node, topics.CAMERA_INFO),
+                depth_info_pub=_publisher(node, topics.DEPTH_CAMERA_INFO),
+                truth_pub=_publisher(node, topics.GROUND_TRUTH_ODOM),
                 autopilot=Autopilot.for_route(route, (0.0, 0.0, 0.0), cyclic=laps) if route is not None else None,
             )
-            static_tf = node.create_publisher(
-                "tf2_msgs/msg/TFMessage", "tf_static", QoSProfile(durability="transient_local", depth=1)
-            )
+            static_tf = _publisher(node, topics.TF_STATIC)
             static_tf.publish(transform_msg(plant.camera_extrinsics(name), "base_link", OPTICAL_FRAME, 0))
             self._static_tf.append(static_tf)
         self.frames_published = 0

@@ -31,11 +31,12 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
+from fleetslam import topics
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import UnsafePathError
 from fleetslam.geometry import invert
-from fleetslam.middleware import Node, QoSProfile
+from fleetslam.middleware import Node
 from fleetslam.msg.conversions import (
     depth_from_image,
     intrinsics_from_camera_info,
@@ -135,43 +136,37 @@ class SlamNode:
         self.priors_used = 0
         self.bad_inputs = 0
         """Odometry / tf_static messages ignored because their pose was not finite or not a rotation."""
-        qos = QoSProfile(depth=5)
-        self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "slam/odom", qos)
-        self.path_pub = node.create_publisher("nav_msgs/msg/Path", "path", QoSProfile(depth=1))
-        self.tf_pub = node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=10))
-        self.live_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "liveframes", qos)
-        self.keyframe_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
-        self.graph_pub = node.create_publisher(
-            "fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(durability="transient_local", depth=1)
-        )
-        self.diagnostics_pub = node.create_publisher(
-            "diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5)
-        )
+
+        def publisher(topic: topics.Topic) -> Any:
+            return node.create_publisher(topic.type, topic.name, topic.qos())
+
+        def subscribe(topic: topics.Topic, callback: Callable[[Any], None], depth: int, name: str | None = None) -> Any:
+            return node.create_subscription(topic.type, name or topic.name, callback, topic.qos(depth=depth))
+
+        self.odom_pub = publisher(topics.SLAM_ODOM)
+        self.path_pub = publisher(topics.PATH)
+        self.tf_pub = publisher(topics.TF)
+        self.live_pub = publisher(topics.LIVEFRAMES)
+        self.keyframe_pub = publisher(topics.KEYFRAMES)
+        self.graph_pub = publisher(topics.GRAPH)
+        self.diagnostics_pub = publisher(topics.SLAM_DIAGNOSTICS)
         # The frame queue drops stale frames itself (and counts them); the subscriptions only bridge a busy moment.
-        images = QoSProfile(depth=self.config.max_pending)
+        pending = self.config.max_pending
         self._image_subscriptions = [
-            node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images),
-            node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images),
+            subscribe(topics.RGB_IMAGE, self.on_rgb, pending),
+            subscribe(topics.DEPTH_IMAGE, self.on_depth, pending),
         ]
-        node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
+        subscribe(topics.CAMERA_INFO, self.on_camera_info, 5)
         if self.config.use_wheel_odometry:
             # Deep enough for several seconds of 50 Hz odometry: a starved process must not lose the wheel poses
             # it needs as priors for the frames it is still working through.
-            node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=500))
-            node.create_subscription(
-                "tf2_msgs/msg/TFMessage", "tf_static", self.on_tf_static,
-                QoSProfile(durability="transient_local", depth=1),
-            )  # fmt: skip
+            subscribe(topics.ODOM, self.on_odom, 500)
+            subscribe(topics.TF_STATIC, self.on_tf_static, 1)
         self.peer_graphs: dict[str, Any] = {}
         self.peer_keyframes: dict[str, int] = {}
         for peer in self.config.peers:
-            node.create_subscription(
-                "fleetslam_msgs/msg/KeyframeGraph", f"/{peer}/graph", self.on_peer_graph,
-                QoSProfile(durability="transient_local", depth=1),
-            )  # fmt: skip
-            node.create_subscription(
-                "fleetslam_msgs/msg/Keyframe", f"/{peer}/keyframes", self.on_peer_keyframe, QoSProfile(depth=50)
-            )
+            subscribe(topics.GRAPH, self.on_peer_graph, 1, topics.GRAPH.of(peer))
+            subscribe(topics.KEYFRAMES, self.on_peer_keyframe, 50, topics.KEYFRAMES.of(peer))
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
