@@ -105,7 +105,7 @@ def wheel_ate(out: Path, robot: str) -> float | None:
     from fleetslam.datasets.recorded_poses import odometry_trajectory
     from fleetslam.eval import ape
     from fleetslam.middleware.recording import read_bag
-    from fleetslam.middleware.typesys import deserialize
+    from fleetslam.msg.typesys import deserialize
 
     topics = {f"/{robot}/odom": "wheels", f"/{robot}/ground_truth/odom": "truth"}
     messages: dict[str, list[Any]] = {"wheels": [], "truth": []}

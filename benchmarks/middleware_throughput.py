@@ -55,7 +55,7 @@ def free_port() -> int:
 
 # -- messages --------------------------------------------------------------------------------------------------
 def make_message(kind: str) -> tuple[str, Any]:
-    from fleetslam.middleware.typesys import get_type, header
+    from fleetslam.msg.typesys import get_type, header
 
     if kind == "image_1mb":
         image = get_type("sensor_msgs/msg/Image")
@@ -87,7 +87,7 @@ def topics_of(kind: str) -> list[str]:
 
 def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
     """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop."""
-    from fleetslam.middleware.typesys import serialize, serialize_buffer
+    from fleetslam.msg.typesys import serialize, serialize_buffer
 
     messages = [(f"/bench/{k}", *make_message(k)) for k in topics_of(kind)]
     period = 1.0 / rate if mode in ("latency", "kinect") else 0.0

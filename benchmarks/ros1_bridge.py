@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from fleetslam.middleware import Context, Node, QoSProfile, Router
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.msg.typesys import ns_from_stamp
 
 TOPIC = "/camera/rgb/image_raw"
 CAMERA = Path(__file__).resolve().parent / "ros1_camera.py"

@@ -14,7 +14,7 @@ from rosbags.highlevel import AnyReader
 from fleetslam.cli.main import main
 from fleetslam.errors import MiddlewareError
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type
+from fleetslam.msg.typesys import get_type
 
 from ..support import free_port, wait_until
 

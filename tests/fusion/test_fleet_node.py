@@ -12,7 +12,7 @@ from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, message_from_dict
+from fleetslam.msg.typesys import get_type, message_from_dict
 
 from ..support import wait_until
 

@@ -17,7 +17,7 @@ from fleetslam.fusion.keyframe_summary import (
     summary_from_message,
 )
 from fleetslam.geometry import random_pose
-from fleetslam.middleware.typesys import deserialize, message_from_dict, serialize
+from fleetslam.msg.typesys import deserialize, message_from_dict, serialize
 
 TYPE = "fleetslam_msgs/msg/KeyframeSummary"
 INTRINSICS = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)

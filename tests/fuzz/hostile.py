@@ -18,8 +18,8 @@ import numpy as np
 import zenoh
 
 from fleetslam.middleware import Node
-from fleetslam.middleware.typesys import message_from_dict, serialize
 from fleetslam.middleware.wire import encode_attachment, topic_key
+from fleetslam.msg.typesys import message_from_dict, serialize
 
 OTHER_TYPES = ("std_msgs/msg/String", "geometry_msgs/msg/Twist", "sensor_msgs/msg/Image", "nav_msgs/msg/Odometry")
 KINDS = ("random", "truncated", "bitflip", "length_lie", "wrong_type", "bad_attachment")

@@ -18,7 +18,7 @@ from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
 from fleetslam.geometry import T_BODY_OPTICAL, pose_from_planar
 from fleetslam.mapping.node import MappingNode, MappingNodeConfig
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, message_from_dict
+from fleetslam.msg.typesys import get_type, header, message_from_dict
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.node import BaseControllerNode
 from fleetslam.slam.node import SlamNode, SlamNodeConfig

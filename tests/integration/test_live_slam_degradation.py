@@ -16,8 +16,8 @@ from fleetslam.datasets import open_source
 from fleetslam.eval import ape
 from fleetslam.geometry import invert
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.conversions import pose_matrix, transform_msg
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.msg.conversions import pose_matrix, transform_msg
+from fleetslam.msg.typesys import ns_from_stamp
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
 from fleetslam.trajectory import Trajectory
 
@@ -46,7 +46,8 @@ def _diagnostics(msg: Any) -> dict[str, float]:
 def test_a_node_fed_faster_than_it_works_drops_stale_frames_and_keeps_its_accuracy(
     drive: Path, make_context: Callable[..., Context]
 ) -> None:
-    from fleetslam.sim.node import OPTICAL_FRAME, camera_info_msg, image_msgs, odometry_msg
+    from fleetslam.msg.conversions import camera_info_msg, odometry_msg, pose_msg
+    from fleetslam.sim.node import OPTICAL_FRAME, image_msgs
     from fleetslam.sim.plant import RGBDFrame as SimFrame
 
     source = open_source(drive)
@@ -80,9 +81,10 @@ def test_a_node_fed_faster_than_it_works_drops_stale_frames_and_keeps_its_accura
             time.sleep(delay)
         stamp_ns = round(frame.stamp * 1e9)
         assert frame.prior is not None
-        odom_pub.publish(odometry_msg(frame.prior @ invert(base_camera), np.zeros(3), np.zeros(3), stamp_ns))
-        info_pub.publish(camera_info_msg(intrinsics, OPTICAL_FRAME, stamp_ns))  # type: ignore[arg-type]
-        rgb, depth = image_msgs(SimFrame(frame.rgb, frame.depth, frame.stamp, np.eye(4), intrinsics), OPTICAL_FRAME)  # type: ignore[arg-type]
+        wheels = pose_msg(frame.prior @ invert(base_camera))
+        odom_pub.publish(odometry_msg(wheels, frame_id="world", child_frame_id="base_link", stamp_ns=stamp_ns))
+        info_pub.publish(camera_info_msg(intrinsics, frame_id=OPTICAL_FRAME, stamp_ns=stamp_ns))
+        rgb, depth = image_msgs(SimFrame(frame.rgb, frame.depth, frame.stamp, np.eye(4), intrinsics), OPTICAL_FRAME)
         rgb_pub.publish(rgb)
         depth_pub.publish(depth)
 

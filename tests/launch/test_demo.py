@@ -24,7 +24,7 @@ from fleetslam.launch.supervisor import ProcessUsage
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.recording import read_bag
-from fleetslam.middleware.typesys import get_type, header, message_from_dict, serialize
+from fleetslam.msg.typesys import get_type, header, message_from_dict, serialize
 from fleetslam.trajectory import read_tum
 
 from ..support import free_port, wait_until

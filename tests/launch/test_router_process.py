@@ -7,7 +7,7 @@ import pytest
 from fleetslam.errors import MiddlewareError
 from fleetslam.launch.router_process import RouterProcess, accepts_connections
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type
+from fleetslam.msg.typesys import get_type
 
 from ..support import free_port, wait_until
 

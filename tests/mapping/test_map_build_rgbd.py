@@ -261,7 +261,7 @@ def _write_recording(
     ``tf_static``: the camera's mounting base_link → camera_link → camera_rgb_optical_frame.
     """
     from fleetslam.middleware.recording import BagWriter
-    from fleetslam.middleware.typesys import get_typestore
+    from fleetslam.msg.typesys import get_typestore
 
     store = get_typestore()
     types = store.types

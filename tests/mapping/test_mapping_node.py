@@ -14,7 +14,7 @@ from fleetslam.geometry import T_BODY_OPTICAL, pose_from_planar, pose_to_quat
 from fleetslam.mapping.node import MappingNode, MappingNodeConfig, PublishPacer
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, message_from_dict
+from fleetslam.msg.typesys import get_type, message_from_dict
 
 from ..support import wait_until
 

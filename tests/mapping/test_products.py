@@ -14,18 +14,8 @@ from fleetslam.mapping.products import (
     cube_list_markers,
     fit_ground_plane,
     height_colormap,
-    pointcloud2_fields_and_data,
-    points_from_pointcloud2,
     project_occupancy_grid,
 )
-
-
-def test_pointcloud2_layout_and_round_trip() -> None:
-    points = np.random.default_rng(0).normal(size=(17, 3))
-    fields, step, data = pointcloud2_fields_and_data(points)
-    assert fields == [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)]
-    assert step == 12 and len(data) == 17 * 12
-    np.testing.assert_array_equal(points_from_pointcloud2(data, step), points.astype(np.float32))
 
 
 def _hsv_reference(h: float) -> tuple[float, float, float]:

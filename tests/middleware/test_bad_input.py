@@ -9,8 +9,8 @@ import pytest
 import zenoh
 
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, serialize
 from fleetslam.middleware.wire import decode_attachment, encode_attachment, topic_key
+from fleetslam.msg.typesys import get_type, serialize
 
 from ..support import wait_until
 

@@ -19,7 +19,7 @@ PROGRAM = textwrap.dedent(
     """
     import sys, threading, time
     from fleetslam.middleware import Context, Node, QoSProfile, Router
-    from fleetslam.middleware.typesys import get_type
+    from fleetslam.msg.typesys import get_type
 
     endpoint = f"tcp/127.0.0.1:{sys.argv[1]}"
     router = Router([endpoint])  # never closed either
@@ -68,7 +68,7 @@ WORKER_PROGRAM = textwrap.dedent(
     """
     import sys, threading, time
     from fleetslam.middleware import Context, Node, QoSProfile, Router
-    from fleetslam.middleware.typesys import get_type
+    from fleetslam.msg.typesys import get_type
 
     endpoint = f"tcp/127.0.0.1:{sys.argv[1]}"
     router = Router([endpoint])

@@ -14,8 +14,8 @@ import zenoh
 from fleetslam.config import ConfigModel
 from fleetslam.errors import ConfigError, MessageError, MiddlewareError, ServiceError
 from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, serialize, stamp_from_ns
 from fleetslam.middleware.wire import LivelinessToken, decode_attachment, encode_attachment, gid_from_key
+from fleetslam.msg.typesys import get_type, header, serialize, stamp_from_ns
 
 from ..support import wait_until
 
@@ -314,7 +314,7 @@ def test_subprocess_publisher_configured_by_environment(
     script = textwrap.dedent(
         """
         from fleetslam.middleware import Context, Node
-        from fleetslam.middleware.typesys import get_type
+        from fleetslam.msg.typesys import get_type
         with Context() as ctx, Node("talker", context=ctx) as node:
             pub = node.create_publisher("std_msgs/msg/String", "chatter")
             ctx.graph.wait_for(lambda g: g.subscriptions_info("/r2d2/chatter"), 5.0)

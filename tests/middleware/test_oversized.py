@@ -13,8 +13,8 @@ from typing import Any
 
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.context import MAX_MESSAGE_BYTES
-from fleetslam.middleware.typesys import get_type, serialize
 from fleetslam.middleware.wire import encode_attachment, topic_key
+from fleetslam.msg.typesys import get_type, serialize
 
 from ..support import free_port, wait_until
 

@@ -11,7 +11,7 @@ import pytest
 
 from fleetslam.errors import ConfigError, MiddlewareError
 from fleetslam.middleware import Context, Node, Router
-from fleetslam.middleware.typesys import get_type
+from fleetslam.msg.typesys import get_type
 
 from ..support import free_port, wait_until
 

@@ -8,8 +8,8 @@ import zenoh
 
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.statistics import RunningStats, SubscriptionStatistics
-from fleetslam.middleware.typesys import get_type, ns_from_stamp, serialize
 from fleetslam.middleware.wire import encode_attachment, topic_key
+from fleetslam.msg.typesys import get_type, ns_from_stamp, serialize
 
 from ..support import wait_until
 

@@ -140,7 +140,7 @@ def test_mangling() -> None:
 
 @pytest.mark.parametrize("kind", [EntityKind.PUBLISHER, EntityKind.SUBSCRIBER, EntityKind.SERVICE, EntityKind.CLIENT])
 def test_entity_tokens_round_trip(kind: EntityKind) -> None:
-    from fleetslam.middleware.typesys import type_hash
+    from fleetslam.msg.typesys import type_hash
 
     type_name = "std_srvs/srv/Trigger" if kind in (EntityKind.SERVICE, EntityKind.CLIENT) else "sensor_msgs/msg/Image"
     token = LivelinessToken(

@@ -5,7 +5,7 @@ from collections.abc import Callable
 from typing import Any
 
 from fleetslam.middleware import Context, Node
-from fleetslam.middleware.typesys import get_type, header
+from fleetslam.msg.typesys import get_type, header
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.drive import MotorModelDrive
 from fleetslam.robot.node import BaseControllerNode

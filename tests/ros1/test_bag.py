@@ -12,7 +12,7 @@ import pytest
 from fleetslam.cli.main import main
 from fleetslam.errors import DatasetError
 from fleetslam.middleware.recording import BagWriter
-from fleetslam.middleware.typesys import message_from_dict, serialize
+from fleetslam.msg.typesys import message_from_dict, serialize
 from fleetslam.ros1.bag import convert_to_rosbag1
 
 from .conftest import Master, need_ros1

@@ -14,7 +14,7 @@ import pytest
 
 from fleetslam.cli.main import main
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import message_from_dict
+from fleetslam.msg.typesys import message_from_dict
 from fleetslam.ros1.bridge import Ros1Bridge, TopicRule
 from fleetslam.ros1.node import Ros1Node
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from fleetslam.errors import MessageError
-from fleetslam.middleware import typesys
+from fleetslam.msg import typesys
 from fleetslam.ros1 import messages
 
 TYPES = [

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import message_from_dict
+from fleetslam.msg.typesys import message_from_dict
 from fleetslam.ros1.bridge import Ros1Bridge, TopicRule
 from fleetslam.ros1.node import Ros1Node
 from fleetslam.ros1.rviz import rviz_config

@@ -21,7 +21,7 @@ import pytest
 from fleetslam.cli.main import main
 from fleetslam.errors import ServiceError
 from fleetslam.middleware import Context, Node
-from fleetslam.middleware.typesys import message_from_dict
+from fleetslam.msg.typesys import message_from_dict
 from fleetslam.ros1 import messages, tcpros
 from fleetslam.ros1.bridge import Ros1Bridge, TopicRule
 from fleetslam.ros1.node import Ros1Node

@@ -15,7 +15,7 @@ import pytest
 
 from fleetslam.cli.main import main
 from fleetslam.middleware import Context, Node
-from fleetslam.middleware.typesys import get_type
+from fleetslam.msg.typesys import get_type
 
 from ..support import free_port, wait_until
 

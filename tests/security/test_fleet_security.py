@@ -17,8 +17,8 @@ import zenoh
 from fleetslam.errors import ConfigError, RouterUnreachableError, ServiceError
 from fleetslam.middleware import Context, Node, QoSProfile, Router
 from fleetslam.middleware.context import MAX_MESSAGE_BYTES
-from fleetslam.middleware.typesys import get_type, message_from_dict, serialize
 from fleetslam.middleware.wire import encode_attachment
+from fleetslam.msg.typesys import get_type, message_from_dict, serialize
 from fleetslam.security.keystore import init_keystore
 
 from ..middleware.test_wire import STRING_HASH

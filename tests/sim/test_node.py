@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("mujoco")
 
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, ns_from_stamp
+from fleetslam.msg.typesys import get_type, ns_from_stamp
 from fleetslam.sim.config import RobotPlacement, SimConfig
 from fleetslam.sim.node import SimNode
 from fleetslam.sim.plant import Plant

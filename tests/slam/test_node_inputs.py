@@ -8,12 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 
 from fleetslam.geometry import pose_from_planar
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.conversions import transform_msg
-from fleetslam.middleware.typesys import message_from_dict, stamp_from_ns
+from fleetslam.msg.conversions import transform_msg
+from fleetslam.msg.typesys import message_from_dict, stamp_from_ns
 from fleetslam.slam.frame_queue import FramePair
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
 
@@ -70,31 +69,10 @@ def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: 
     assert slam.counts["late_wheel_frames"] == 1 and slam.frames == 0
 
 
-def test_images_are_decoded_with_their_row_step_and_byte_order() -> None:
-    from functools import partial
-
-    from fleetslam.middleware.typesys import get_type, header
-    from fleetslam.slam.node import image_to_array
-
-    image = partial(get_type("sensor_msgs/msg/Image"), header=header("camera", 0))
-    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
-    padded = np.zeros((2, 12), np.uint8)  # rows padded to 12 bytes, as some drivers align them
-    padded[:, :9] = rgb.reshape(2, 9)
-    msg = image(height=2, width=3, encoding="rgb8", is_bigendian=0, step=12, data=padded.reshape(-1))
-    np.testing.assert_array_equal(image_to_array(msg), rgb)
-    depth_mm = np.array([[1000, 2500], [0, 65535]], dtype=">u2")  # big-endian 16UC1, millimetres
-    msg = image(height=2, width=2, encoding="16UC1", is_bigendian=1, step=4,
-                data=np.frombuffer(depth_mm.tobytes(), np.uint8).copy())  # fmt: skip
-    np.testing.assert_allclose(image_to_array(msg), [[1.0, 2.5], [0.0, 65.535]], rtol=1e-6)
-    short = image(height=4, width=3, encoding="rgb8", is_bigendian=0, step=9, data=np.zeros(20, np.uint8))
-    with pytest.raises(ValueError, match="does not fit"):
-        image_to_array(short)
-
-
 def test_save_map_writes_only_plain_names_inside_the_maps_directory(
     make_context: Callable[..., Context], tmp_path: Path
 ) -> None:
-    from fleetslam.middleware.typesys import get_type
+    from fleetslam.msg.typesys import get_type
 
     SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig(maps_dir=str(tmp_path / "maps")))
     save = Node("operator", context=make_context()).create_client("fleetslam_msgs/srv/SaveMap", "/c3po/slam/save_map")
@@ -117,7 +95,7 @@ def test_images_and_odometry_stamped_far_in_the_future_do_not_stall_slam(
     and unpaired), and odometry stamped far in the future, sent into a node tracking a 5 Hz camera. Before: slam/odom
     5 Hz → 0 and no wheel prior ever again; now the node goes on at the camera's rate with its priors."""
     from fleetslam.datasets.base import Intrinsics
-    from fleetslam.middleware.typesys import get_type, header
+    from fleetslam.msg.typesys import get_type, header
 
     from .textured_room import make_textures, render
 

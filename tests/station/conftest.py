@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header
+from fleetslam.msg.typesys import get_type, header
 from fleetslam.station.server import STATIC_DIR
 
 
@@ -63,7 +63,7 @@ def test_robot(make_context: Callable[..., Context]) -> Iterator[RobotUnderTest]
     image_pub = node.create_publisher("sensor_msgs/msg/Image", "camera/rgb/image_raw", QoSProfile(depth=1))
     odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=1))
     image_type, odom_type = get_type("sensor_msgs/msg/Image"), get_type("nav_msgs/msg/Odometry")
-    from fleetslam.middleware.typesys import message_from_dict
+    from fleetslam.msg.typesys import message_from_dict
 
     grid = np.stack(np.meshgrid(np.arange(20), np.arange(10), [0, 1, 2], indexing="ij"), -1).reshape(-1, 3)
     walls = (grid * 0.05 + 0.025) + [1.0, 0.0, 0.0]

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from fleetslam.middleware import Context, Node
-from fleetslam.middleware.typesys import message_from_dict
+from fleetslam.msg.typesys import message_from_dict
 from fleetslam.station.bridge import StationBridge
 
 from ..support import wait_until

@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import pytest
 
 from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.msg.typesys import ns_from_stamp
 
 from ..support import free_port, wait_until
 from .conftest import save_screenshot

@@ -9,7 +9,7 @@ import yaml
 from fleetslam.cli.common import cli_node, to_yaml, wait_for_graph
 from fleetslam.errors import ConfigError
 from fleetslam.middleware.names import expand_name
-from fleetslam.middleware.typesys import message_from_dict, message_to_dict, service_types
+from fleetslam.msg.typesys import message_from_dict, message_to_dict, service_types
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -9,8 +9,8 @@ import time
 from typing import Any
 
 from fleetslam.cli.common import cli_node
-from fleetslam.middleware import QoSProfile
 from fleetslam.middleware.stats_table import StatsTable, format_table
+from fleetslam.topics import STATISTICS
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,9 +34,7 @@ def run(args: argparse.Namespace) -> int:
             print(json.dumps(row.as_dict()), flush=True)
 
     with cli_node("stats") as node:
-        node.create_subscription(
-            "fleetslam_msgs/msg/TopicStatistics", "/statistics", on_statistics, QoSProfile(depth=1000)
-        )
+        node.create_subscription(STATISTICS.type, STATISTICS.name, on_statistics, STATISTICS.qos(depth=1000))
         start = time.monotonic()
         if args.once:
             time.sleep(args.wait)

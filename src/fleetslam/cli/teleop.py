@@ -6,6 +6,7 @@ import argparse
 import contextlib
 
 from fleetslam.middleware import Context, Node
+from fleetslam.topics import CMD_VEL
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _topic(robot: str | None) -> str:
-    return f"/{robot.strip('/')}/cmd_vel" if robot else "cmd_vel"
+    return CMD_VEL.of(robot) if robot else CMD_VEL.name
 
 
 def run_keyboard(args: argparse.Namespace) -> int:

@@ -15,7 +15,7 @@ from fleetslam.errors import ConfigError, MiddlewareError
 from fleetslam.middleware import MessageInfo
 from fleetslam.middleware.meters import BandwidthMeter, RateMeter, human_bytes
 from fleetslam.middleware.names import expand_name
-from fleetslam.middleware.typesys import message_from_dict, message_to_dict
+from fleetslam.msg.typesys import message_from_dict, message_to_dict
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

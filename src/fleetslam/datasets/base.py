@@ -16,23 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.errors import DatasetError
+from fleetslam.intrinsics import Intrinsics
 from fleetslam.trajectory import Trajectory
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics (OpenCV convention). Same fields as ``fleetslam.sim.camera.CameraIntrinsics``."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int = 640
-    height: int = 480
-
-    @property
-    def K(self) -> NDArray[np.float64]:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
 
 @dataclass

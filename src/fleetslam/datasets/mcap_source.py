@@ -1,6 +1,7 @@
 """MCAP recordings of camera topics (``sensor_msgs/msg/Image`` colour + depth, ``CameraInfo``).
 
-Messages are CDR-encoded ROS 2 types, decoded with the rosbags typestore (no middleware needed). A colour
+Messages are CDR-encoded ROS 2 types, decoded with fleetslam's typestore (ROS 2 Jazzy and our own types, no
+middleware needed). A colour
 image is paired with the depth image whose header stamp is closest within ``max_difference``; frames are
 decoded while iterating. Depth ``16UC1`` is millimetres, ``32FC1`` metres.
 
@@ -31,19 +32,15 @@ from fleetslam.datasets.recorded_poses import (
     stamp_seconds,
     static_transforms,
 )
-from fleetslam.errors import DatasetError
+from fleetslam.errors import DatasetError, MessageError
+from fleetslam.msg.conversions import depth_from_image, intrinsics_from_camera_info, rgb_from_image
+from fleetslam.msg.typesys import deserialize
 from fleetslam.trajectory import InterpolatedPose, Trajectory
 
 log = logging.getLogger(__name__)
 
 #: Odometry poses further apart than this (s) are a hole in the recording: no pose is interpolated across it.
 MAX_POSE_GAP = 0.25
-
-
-def _typestore() -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS2_HUMBLE)
 
 
 @contextlib.contextmanager
@@ -58,23 +55,12 @@ def _unreadable_as_dataset_error(path: Path) -> Iterator[None]:
         raise DatasetError(f"{path}: not a readable MCAP file ({type(err).__name__}: {err})") from err
 
 
-def image_to_array(msg: Any, where: str) -> NDArray[Any]:
-    """A ``sensor_msgs/Image`` as an array: ``rgb8``/``bgr8``/``rgba8``/``bgra8`` → RGB uint8, depth → metres."""
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    h, w, enc = int(msg.height), int(msg.width), str(msg.encoding)
-    if enc in ("rgb8", "bgr8", "rgba8", "bgra8"):
-        channels = 4 if enc.endswith("a8") else 3
-        img = data.reshape(h, int(msg.step))[:, : w * channels].reshape(h, w, channels)[:, :, :3]
-        return np.ascontiguousarray(img[:, :, ::-1] if enc.startswith("bgr") else img)
-    if enc in ("16UC1", "mono16"):
-        dt = np.dtype(">u2" if msg.is_bigendian else "<u2")
-        raw = data.view(dt).reshape(h, int(msg.step) // 2)[:, :w]
-        return (raw.astype(np.float32) / 1000.0).astype(np.float32)
-    if enc == "32FC1":
-        dtf = np.dtype(">f4" if msg.is_bigendian else "<f4")
-        depth = data.view(dtf).reshape(h, int(msg.step) // 4)[:, :w].astype(np.float32)
-        return np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
-    raise DatasetError(f"{where}: unsupported image encoding {enc!r}")
+def _frame_images(rgb: Any, depth: Any, where: str) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """RGB uint8 and depth metres of a colour/depth Image pair (see :mod:`fleetslam.msg.conversions`)."""
+    try:
+        return rgb_from_image(rgb), depth_from_image(depth)
+    except MessageError as err:
+        raise DatasetError(f"{where}: {err}") from err
 
 
 class McapSource:
@@ -98,7 +84,6 @@ class McapSource:
         self.path = path
         self.name = path.stem
         self.max_difference = max_difference
-        self._store = _typestore()
         image_topics: list[str] = []
         odometry_topics: list[str] = []
         self._tf_static_topics: list[str] = []
@@ -147,8 +132,8 @@ class McapSource:
 
     def _decode(self, data: bytes, type_name: str, topic: str) -> Any:
         try:
-            return self._store.deserialize_cdr(data, type_name)
-        except Exception as err:  # rosbags' SerdeError, struct.error, ...: a corrupt message
+            return deserialize(data, type_name)
+        except MessageError as err:  # a corrupt message, or a type the typestore does not know
             raise DatasetError(f"{self.path}: a {type_name} message on {topic} cannot be decoded: {err}") from err
 
     def _pair_index(self) -> list[tuple[int, int]]:
@@ -169,8 +154,10 @@ class McapSource:
         if info_topic is None:
             raise DatasetError(f"{self.path}: no sensor_msgs/msg/CameraInfo topic; give the intrinsics")
         for _, msg in self._messages([info_topic]):
-            k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-            return Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(msg.width), int(msg.height))
+            try:
+                return intrinsics_from_camera_info(msg)
+            except MessageError as err:
+                raise DatasetError(f"{self.path}: CameraInfo on {info_topic}: {err}") from err
         raise DatasetError(f"{self.path}: CameraInfo topic {info_topic} has no messages")
 
     def __len__(self) -> int:
@@ -202,11 +189,12 @@ class McapSource:
                 pair = pending.pop(next_out)
                 where = f"{self.path} frame {next_out}"
                 stamp = stamp_seconds(pair["rgb"])
+                rgb, depth = _frame_images(pair["rgb"], pair["depth"], where)
                 yield RGBDFrame(
                     next_out,
                     stamp,
-                    image_to_array(pair["rgb"], where),
-                    image_to_array(pair["depth"], where),
+                    rgb,
+                    depth,
                     prior=None if prior_at is None else prior_at(stamp),
                     groundtruth=None if truth_at is None else truth_at(stamp),
                 )

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import pose_from_quat
+from fleetslam.msg.conversions import pose_matrix, transform_matrix
 from fleetslam.trajectory import Trajectory
 
 
@@ -36,8 +36,7 @@ def static_transforms(messages: Iterable[Any]) -> dict[str, tuple[str, NDArray[n
     transforms: dict[str, tuple[str, NDArray[np.float64]]] = {}
     for message in messages:
         for stamped in message.transforms:
-            t, q = stamped.transform.translation, stamped.transform.rotation
-            matrix = pose_from_quat([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
+            matrix = transform_matrix(stamped.transform)
             transforms[_frame(stamped.child_frame_id)] = (_frame(stamped.header.frame_id), matrix)
     return transforms
 
@@ -71,9 +70,8 @@ def odometry_trajectory(messages: Iterable[Any]) -> tuple[str, str, Trajectory]:
     for message in messages:
         if not stamps:
             frame, child = _frame(message.header.frame_id), _frame(message.child_frame_id)
-        p, q = message.pose.pose.position, message.pose.pose.orientation
         stamps.append(stamp_seconds(message))
-        poses.append(pose_from_quat([p.x, p.y, p.z], [q.x, q.y, q.z, q.w]))
+        poses.append(pose_matrix(message.pose.pose))
     return frame, child, Trajectory.from_lists(stamps, poses)
 
 

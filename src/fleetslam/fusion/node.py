@@ -17,14 +17,16 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
+from fleetslam import topics
 from fleetslam.config import ConfigModel
 from fleetslam.errors import UnsafePathError
 from fleetslam.fusion.fleet_map import FleetMap
 from fleetslam.geometry import pose_from_xyz_rpy
-from fleetslam.mapping.node import PublishPacer, pointcloud2_msg
+from fleetslam.mapping.node import PublishPacer
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
-from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.middleware import Node
+from fleetslam.msg.conversions import pointcloud2_msg
+from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
@@ -68,9 +70,9 @@ class FleetMapNode:
         self._version = 0
         self._published = {"occupied": 0, "octomap": 0}
         self._pacer = PublishPacer(self.config.max_publish_load)
-        latched = QoSProfile(durability="transient_local", depth=1)
-        self.cloud_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "/fleet/map/occupied", latched)
-        self.octomap_pub = node.create_publisher("octomap_msgs/msg/Octomap", "/fleet/map/octomap", latched)
+        cloud, octomap = topics.FLEET_MAP_OCCUPIED, topics.FLEET_MAP_OCTOMAP
+        self.cloud_pub = node.create_publisher(cloud.type, cloud.name, cloud.qos())
+        self.octomap_pub = node.create_publisher(octomap.type, octomap.name, octomap.qos())
         node.create_service("fleetslam_msgs/srv/SaveMap", "/fleet/map/save", self.on_save)
         for agent in self.config.agents:
             self._subscribe(agent)
@@ -81,12 +83,9 @@ class FleetMapNode:
         if agent in self._subscribed:
             return
         self._subscribed.add(agent)
+        octomap = topics.MAP_OCTOMAP
         self.node.create_subscription(
-            "octomap_msgs/msg/Octomap",
-            f"/{agent}/map/octomap",
-            partial(self.on_agent_map, agent),
-            QoSProfile(durability="transient_local", depth=1),
-            raw=True,
+            octomap.type, octomap.of(agent), partial(self.on_agent_map, agent), octomap.qos(depth=1), raw=True
         )
 
     def _discover(self) -> None:
@@ -127,11 +126,12 @@ class FleetMapNode:
         """The fused map to whoever subscribes, if it changed since it was last published to them; whether it
         was published."""
         fused = self.fleet.fused()
-        stamp = header(self.config.frame_id, self.node.now_ns())
+        now_ns = self.node.now_ns()
+        stamp = header(self.config.frame_id, now_ns)
         published = False
         if self._published["occupied"] != self._version and self.cloud_pub.matched_subscriptions:
             centres, _ = fused.occupied_centers()
-            self.cloud_pub.publish(pointcloud2_msg(centres, stamp))
+            self.cloud_pub.publish(pointcloud2_msg(centres, frame_id=self.config.frame_id, stamp_ns=now_ns))
             self._published["occupied"] = self._version
             published = True
         if self._published["octomap"] != self._version and self.octomap_pub.matched_subscriptions:

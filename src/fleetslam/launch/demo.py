@@ -33,10 +33,11 @@ from fleetslam.geometry import quat_to_matrix
 from fleetslam.launch.description import ProcessSpec, RestartPolicy
 from fleetslam.launch.router_process import RouterProcess, accepts_connections
 from fleetslam.launch.supervisor import ProcessUsage, Supervisor, sample_process
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsRow, StatsTable
 from fleetslam.station.access import new_token
+from fleetslam.topics import GRAPH, GROUND_TRUTH_ODOM, ODOM, SLAM_DIAGNOSTICS, SLAM_ODOM, STATISTICS, Topic
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +220,7 @@ def odometry_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
 
 
 def _decoded_stamp_pose(data: bytes) -> tuple[float, NDArray[np.float64]]:
-    from fleetslam.middleware.typesys import deserialize, ns_from_stamp
+    from fleetslam.msg.typesys import deserialize, ns_from_stamp
 
     msg = deserialize(data, "nav_msgs/msg/Odometry")
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -271,26 +272,25 @@ class _Monitor:
         self.lock = threading.Lock()
         self.writer = BagWriter(recording) if recording is not None else None
         self.node.create_subscription(
-            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000), raw=True
+            STATISTICS.type, STATISTICS.name, self._on_statistics, STATISTICS.qos(depth=1000), raw=True
         )
-        odometry = "nav_msgs/msg/Odometry"
         for robot in robots:
-            topics: list[tuple[str, str, _OdometryTrack | None]] = [
-                (odometry, "slam/odom", self.tracks[f"{robot}/slam"]),
-                (odometry, "ground_truth/odom", self.tracks[f"{robot}/truth"]),
+            followed: list[tuple[Topic, _OdometryTrack | None]] = [
+                (SLAM_ODOM, self.tracks[f"{robot}/slam"]),
+                (GROUND_TRUTH_ODOM, self.tracks[f"{robot}/truth"]),
             ]
             if self.writer is not None:  # recorded only
-                topics += [(odometry, "odom", None), ("fleetslam_msgs/msg/KeyframeGraph", "graph", None)]
-            for type_name, topic, track in topics:
-                self.node.create_subscription(type_name, f"/{robot}/{topic}", partial(self._on_sample, track),
-                                              QoSProfile(depth=100), raw=True)  # fmt: skip
+                followed += [(ODOM, None), (GRAPH, None)]
+            for topic, track in followed:
+                self.node.create_subscription(topic.type, topic.of(robot), partial(self._on_sample, track),
+                                              topic.qos(depth=100), raw=True)  # fmt: skip
             self.node.create_subscription(
-                "diagnostic_msgs/msg/DiagnosticArray", f"/{robot}/slam/diagnostics",
-                partial(self._on_diagnostics, robot), QoSProfile(depth=1), raw=True,
+                SLAM_DIAGNOSTICS.type, SLAM_DIAGNOSTICS.of(robot), partial(self._on_diagnostics, robot),
+                SLAM_DIAGNOSTICS.qos(depth=1), raw=True,
             )  # fmt: skip
 
     def _on_statistics(self, data: bytes, info: Any) -> None:
-        from fleetslam.middleware.typesys import deserialize
+        from fleetslam.msg.typesys import deserialize
 
         msg = deserialize(data, info.type_name)
         with self.lock:
@@ -318,7 +318,7 @@ class _Monitor:
 
     def slam_diagnostics(self) -> dict[str, dict[str, str]]:
         """The values of each robot's latest ``slam`` diagnostics status (robots that sent none are absent)."""
-        from fleetslam.middleware.typesys import deserialize
+        from fleetslam.msg.typesys import deserialize
 
         with self.lock:
             latest = dict(self._diagnostics)
@@ -448,7 +448,7 @@ def run_demo(
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
     """Ask every map node to save its map as ``<name>.bt`` in its maps directory (the demo's ``maps/``)."""
-    from fleetslam.middleware.typesys import get_type
+    from fleetslam.msg.typesys import get_type
 
     request = get_type("fleetslam_msgs/srv/SaveMap_Request")
     for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:

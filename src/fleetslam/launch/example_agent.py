@@ -20,8 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, message_from_dict
+from fleetslam.middleware import Context, Node
+from fleetslam.msg.conversions import odometry_msg, planar_pose_msg, pointcloud2_msg
+from fleetslam.msg.typesys import header, message_from_dict
+from fleetslam.topics import GRAPH, MAP_OCCUPIED, ODOM
 
 log = logging.getLogger(__name__)
 
@@ -49,19 +51,6 @@ def corridor_voxels(
     return (keys + 0.5) * resolution
 
 
-def pointcloud2(points: np.ndarray, frame_id: str, stamp_ns: int) -> Any:
-    """A sensor_msgs/PointCloud2 with float32 x, y, z."""
-    field = get_type("sensor_msgs/msg/PointField")
-    cloud = get_type("sensor_msgs/msg/PointCloud2")
-    data = np.ascontiguousarray(points, dtype=np.float32)
-    return cloud(
-        header=header(frame_id, stamp_ns), height=1, width=len(data),
-        fields=[field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
-        is_bigendian=False, point_step=12, row_step=12 * len(data),
-        data=np.frombuffer(data.tobytes(), dtype=np.uint8), is_dense=True,
-    )  # fmt: skip
-
-
 def run_agent(
     peers: list[str], *, rate_hz: float = 5.0, duration_s: float = 0.0, radius: float = 3.0,
     center: tuple[float, float] = (0.0, 0.0), speed: float = 0.4,
@@ -75,10 +64,10 @@ def run_agent(
             received[msg.agent] = received.get(msg.agent, 0) + 1
 
         for peer in peers:
-            node.create_subscription("fleetslam_msgs/msg/KeyframeGraph", f"/{peer}/graph", on_peer_graph)
-        graph_pub = node.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
-        odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=5))
-        map_pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", QoSProfile(depth=1))
+            node.create_subscription(GRAPH.type, GRAPH.of(peer), on_peer_graph, GRAPH.qos())
+        graph_pub, odom_pub, map_pub = (
+            node.create_publisher(topic.type, topic.name, topic.qos()) for topic in (GRAPH, ODOM, MAP_OCCUPIED)
+        )
         start = time.monotonic()
         keyframes: list[tuple[float, float, float]] = []
         tick = 0
@@ -86,13 +75,10 @@ def run_agent(
             t = time.monotonic() - start
             x, y, yaw = circle_pose(t, radius=radius, speed=speed, center=center)
             now = node.now_ns()
-            odom = message_from_dict(
-                "nav_msgs/msg/Odometry",
-                {"child_frame_id": "base_link", "pose": {"pose": {"position": {"x": x, "y": y},
-                 "orientation": {"z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}}},
-                 "twist": {"twist": {"linear": {"x": speed}, "angular": {"z": speed / radius}}}},
+            odom = odometry_msg(
+                planar_pose_msg(x, y, yaw), frame_id="odom", child_frame_id="base_link", stamp_ns=now,
+                linear=(speed, 0.0, 0.0), angular=(0.0, 0.0, speed / radius),
             )  # fmt: skip
-            odom.header = header("odom", now)
             odom_pub.publish(odom)
             if not keyframes or math.hypot(keyframes[-1][0] - x, keyframes[-1][1] - y) > 0.5:
                 keyframes.append((x, y, yaw))
@@ -108,7 +94,11 @@ def run_agent(
             if tick % max(1, int(rate_hz)) == 0 and len(keyframes) > 1:
                 path = np.array([(kx, ky) for kx, ky, _ in keyframes])
                 map_pub.publish(
-                    pointcloud2(corridor_voxels(path[:, 0], path[:, 1], half_width=1.0, resolution=0.1), "map", now)
+                    pointcloud2_msg(
+                        corridor_voxels(path[:, 0], path[:, 1], half_width=1.0, resolution=0.1),
+                        frame_id="map",
+                        stamp_ns=now,
+                    )
                 )
                 log.info("%s: %d keyframes, received %s", agent, len(keyframes), received)
             tick += 1

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
+from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
@@ -29,10 +30,10 @@ from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
-from fleetslam.mapping.products import cube_list_markers, pointcloud2_fields_and_data, project_occupancy_grid
-from fleetslam.middleware import Node, Publisher, QoSProfile
-from fleetslam.middleware.conversions import pose_matrix
-from fleetslam.middleware.typesys import deserialize, get_type, header, message_from_dict
+from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
+from fleetslam.middleware import Node, Publisher
+from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix
+from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
@@ -81,18 +82,6 @@ def decode_depth(msg: Any) -> np.ndarray | None:
     return depth
 
 
-def pointcloud2_msg(points: np.ndarray, stamp_header: Any) -> Any:
-    """sensor_msgs/msg/PointCloud2 of ``(N, 3)`` points as float32 x, y, z."""
-    fields, step, data = pointcloud2_fields_and_data(points)
-    field_type = get_type("sensor_msgs/msg/PointField")
-    return get_type("sensor_msgs/msg/PointCloud2")(
-        header=stamp_header, height=1, width=len(points),
-        fields=[field_type(name=n, offset=o, datatype=d, count=c) for n, o, d, c in fields],
-        is_bigendian=False, point_step=step, row_step=step * len(points),
-        data=np.frombuffer(data, np.uint8), is_dense=True,
-    )  # fmt: skip
-
-
 class PublishPacer:
     """Spaces out publications so that building them takes at most ``max_load`` of a core on average."""
 
@@ -129,18 +118,19 @@ class MappingNode:
         self._next_reintegration = -math.inf
         self.rejected = 0
         """Keyframes and graphs left out because they were malformed (non-finite or invalid poses)."""
-        latched = QoSProfile(durability="transient_local", depth=1)
         self._products: dict[str, tuple[Publisher, Callable[[Any], Any]]] = {
-            "octomap": (node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched), self._octomap),
-            "occupied": (node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", latched), self._cloud),
-            "markers": (node.create_publisher("visualization_msgs/msg/MarkerArray", "map/markers", latched),
-                        self._markers),
-            "grid": (node.create_publisher("nav_msgs/msg/OccupancyGrid", "map/grid", latched), self._grid),
-        }  # fmt: skip
-        node.create_subscription("fleetslam_msgs/msg/Keyframe", "keyframes", self.on_keyframe, QoSProfile(depth=50))
-        node.create_subscription(
-            "fleetslam_msgs/msg/KeyframeGraph", "graph", self.on_graph_data, QoSProfile(depth=1), raw=True
-        )
+            name: (node.create_publisher(topic.type, topic.name, topic.qos()), build)
+            for name, topic, build in (
+                ("octomap", topics.MAP_OCTOMAP, self._octomap),
+                ("occupied", topics.MAP_OCCUPIED, self._cloud),
+                ("markers", topics.MAP_MARKERS, self._markers),
+                ("grid", topics.MAP_GRID, self._grid),
+            )
+        }
+        keyframes, graph = topics.KEYFRAMES, topics.GRAPH
+        node.create_subscription(keyframes.type, keyframes.name, self.on_keyframe, keyframes.qos(depth=50))
+        # Latched: a mapping node started after SLAM gets the current graph at once.
+        node.create_subscription(graph.type, graph.name, self.on_graph_data, graph.qos(depth=1), raw=True)
         node.create_service("fleetslam_msgs/srv/SaveMap", "map/save", self.on_save)
         node.create_service("fleetslam_msgs/srv/ClearBbx", "map/clear_bbx", self.on_clear_bbx)
         node.create_service("std_srvs/srv/Trigger", "map/reset", self.on_reset)
@@ -232,7 +222,7 @@ class MappingNode:
         return self._centres[1], self._centres[2]
 
     def _cloud(self, stamp: Any) -> Any:
-        return pointcloud2_msg(self._occupied()[0], stamp)
+        return pointcloud2_msg(self._occupied()[0], frame_id=stamp.frame_id, stamp_ns=ns_from_stamp(stamp.stamp))
 
     def _markers(self, stamp: Any) -> Any:
         centres, sizes = self._occupied()

@@ -1,8 +1,8 @@
 """What octomap_server publishes, as plain arrays: point cloud bytes, cube-list markers and a 2D projection.
 
 Pure functions over leaf centres and sizes (from :meth:`OccupancyOctree.occupied_centers` / ``free_centers``);
-a node turns the results into ROS messages (sensor_msgs/PointCloud2, visualization_msgs/MarkerArray,
-nav_msgs/OccupancyGrid).
+a node turns the results into ROS messages (visualization_msgs/MarkerArray, nav_msgs/OccupancyGrid; the point
+cloud through :func:`fleetslam.msg.conversions.pointcloud2_msg`).
 """
 
 from __future__ import annotations
@@ -16,31 +16,9 @@ from numpy.typing import ArrayLike, NDArray
 from fleetslam.mapping.keys import TREE_DEPTH
 from fleetslam.mapping.leaves import LeafArrays
 
-#: sensor_msgs/PointField datatype FLOAT32.
-POINTFIELD_FLOAT32 = 7
 #: octomap_server's m_colorFactor: hues span 0 … 0.8 of the circle.
 DEFAULT_COLOR_FACTOR = 0.8
 OCCUPIED, FREE, UNKNOWN = 100, 0, -1
-
-
-# -- point cloud -------------------------------------------------------------------------------------------------
-def pointcloud2_fields_and_data(
-    points: ArrayLike,
-) -> tuple[list[tuple[str, int, int, int]], int, bytes]:
-    """PointCloud2 layout of ``x y z`` float32 points: (fields as (name, offset, datatype, count), point_step,
-    little-endian data). Use height 1, width N, row_step = point_step·N, is_dense true."""
-    xyz = np.ascontiguousarray(np.asarray(points, dtype="<f4").reshape(-1, 3))
-    fields = [("x", 0, POINTFIELD_FLOAT32, 1), ("y", 4, POINTFIELD_FLOAT32, 1), ("z", 8, POINTFIELD_FLOAT32, 1)]
-    return fields, 12, xyz.tobytes()
-
-
-def points_from_pointcloud2(
-    data: bytes, point_step: int, offsets: tuple[int, int, int] = (0, 4, 8)
-) -> NDArray[np.float32]:
-    """``x y z`` float32 of little-endian PointCloud2 data with any point step (the inverse, for any cloud)."""
-    raw = np.frombuffer(data, dtype=np.uint8).reshape(-1, point_step)
-    columns = [raw[:, o : o + 4].copy().view("<f4")[:, 0] for o in offsets]
-    return np.stack(columns, axis=1).astype(np.float32)
 
 
 # -- markers -----------------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from typing import Literal
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 from fleetslam.errors import DatasetError
-from fleetslam.middleware.typesys import get_typestore, type_hash
+from fleetslam.msg.typesys import get_typestore, type_hash
 
 ROSBAG2_VERSION: Literal[8, 9] = 9
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.msg.typesys import ns_from_stamp
 
 
 @dataclass(frozen=True)

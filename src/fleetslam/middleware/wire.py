@@ -123,7 +123,7 @@ def strip_name(fq_name: str) -> str:
 
 def topic_key(domain_id: int, fq_name: str, type_name: str) -> str:
     """Data key expression of a topic or service, e.g. ``0/chatter/std_msgs::msg::dds_::String_/RIHS01_…``."""
-    from fleetslam.middleware.typesys import dds_type_name, type_hash
+    from fleetslam.msg.typesys import dds_type_name, type_hash
 
     return f"{domain_id}/{strip_name(fq_name)}/{dds_type_name(type_name)}/{type_hash(type_name)}"
 
@@ -138,7 +138,7 @@ topic_key_any_type = topic_key_expr_any_type
 
 def parse_topic_key(key: str) -> tuple[int, str, str, str]:
     """``(domain_id, fq_name, type_name, type_hash)`` of a data key."""
-    from fleetslam.middleware.typesys import ros_type_name
+    from fleetslam.msg.typesys import ros_type_name
 
     parts = key.split("/")
     if len(parts) < 4 or not parts[0].isdigit():
@@ -289,7 +289,7 @@ class LivelinessToken:
         head = [LIVELINESS_PREFIX, str(self.domain_id), self.zid, str(self.nid), str(self.eid), self.kind.value]
         chunks = [*head, mangle(self.enclave), mangle(self.namespace), self.node_name]
         if self.kind is not EntityKind.NODE:
-            from fleetslam.middleware.typesys import dds_type_name
+            from fleetslam.msg.typesys import dds_type_name
 
             chunks += [mangle(self.topic), dds_type_name(self.type_name), self.type_hash, qos_to_token(self.qos)]
         if any(not c for c in chunks):
@@ -309,7 +309,7 @@ class LivelinessToken:
     @classmethod
     def parse(cls, key: str) -> LivelinessToken:
         """Parse a token key; raises MessageError when it is not one."""
-        from fleetslam.middleware.typesys import ros_type_name
+        from fleetslam.msg.typesys import ros_type_name
 
         parts = key.split("/")
         if len(parts) < 9 or parts[0] != LIVELINESS_PREFIX:

@@ -7,11 +7,12 @@ import math
 import threading
 from typing import Any
 
-from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import ns_from_stamp
+from fleetslam.middleware import Node
+from fleetslam.msg.typesys import ns_from_stamp
 from fleetslam.robot.autopilot import Autopilot, Route
 from fleetslam.robot.teleop import CommandGate
 from fleetslam.robot.teleop_node import TwistPublisher
+from fleetslam.topics import CMD_VEL, ODOM
 
 log = logging.getLogger(__name__)
 
@@ -32,8 +33,8 @@ class AutopilotNode:
         route: Route,
         *,
         rate: float = 10.0,
-        odom_topic: str = "odom",
-        cmd_topic: str = "cmd_vel",
+        odom_topic: str = ODOM.name,
+        cmd_topic: str = CMD_VEL.name,
         stamped: bool = False,
         **pursuit: float,
     ) -> None:
@@ -46,7 +47,7 @@ class AutopilotNode:
         self.done = threading.Event()
         self._gate = CommandGate()
         self._odom_time = 0.0
-        node.create_subscription("nav_msgs/msg/Odometry", odom_topic, self._on_odom, QoSProfile(depth=1))
+        node.create_subscription(ODOM.type, odom_topic, self._on_odom, ODOM.qos(depth=1))
         self.timer = node.create_timer(1.0 / rate, self._on_timer)
 
     def _on_odom(self, msg: Any) -> None:

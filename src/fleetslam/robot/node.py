@@ -16,16 +16,17 @@ service ``e_stop`` std_srvs/srv/SetBool (true engages, false releases).
 from __future__ import annotations
 
 import logging
-import math
 import threading
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from fleetslam.middleware import MessageInfo, Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header, ns_from_stamp
+from fleetslam import topics
+from fleetslam.middleware import MessageInfo, Node
 from fleetslam.middleware.wire import EntityKind, LivelinessToken
+from fleetslam.msg.conversions import odometry_msg, planar_pose_msg, tf_msg
+from fleetslam.msg.typesys import get_type, header, ns_from_stamp
 from fleetslam.robot.config import RobotConfig
 from fleetslam.robot.controller import BaseController, ControllerOutput
 from fleetslam.robot.interfaces import WheelInterface
@@ -69,28 +70,15 @@ class BaseControllerNode:
         self._types = {
             name: get_type(name)
             for name in (
-                "nav_msgs/msg/Odometry",
-                "geometry_msgs/msg/PoseWithCovariance",
-                "geometry_msgs/msg/TwistWithCovariance",
-                "geometry_msgs/msg/Pose",
-                "geometry_msgs/msg/Point",
-                "geometry_msgs/msg/Quaternion",
-                "geometry_msgs/msg/Twist",
-                "geometry_msgs/msg/Vector3",
-                "geometry_msgs/msg/Transform",
-                "geometry_msgs/msg/TransformStamped",
                 "sensor_msgs/msg/JointState",
-                "tf2_msgs/msg/TFMessage",
                 "std_srvs/srv/SetBool_Response",
             )
         }
-        self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=10))
-        self.joint_pub = node.create_publisher("sensor_msgs/msg/JointState", "joint_states", QoSProfile(depth=10))
-        self.tf_pub = (
-            node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=100))
-            if self.config.publish_tf
-            else None
-        )
+        odom, joints, tf = topics.ODOM, topics.JOINT_STATES, topics.TF
+        self.odom_pub = node.create_publisher(odom.type, odom.name, odom.qos())
+        self.joint_pub = node.create_publisher(joints.type, joints.name, joints.qos())
+        # A deeper queue than the contract's: odometry at 50 Hz and tf with it, not to be dropped in a burst.
+        self.tf_pub = node.create_publisher(tf.type, tf.name, tf.qos(depth=100)) if self.config.publish_tf else None
         self.last_external_command: float | None = None
         """Clock time of the last accepted `cmd_vel` (an operator or another node driving the robot)."""
         self._commander: bytes | None = None
@@ -99,10 +87,8 @@ class BaseControllerNode:
         """Times the commanding publisher's liveliness disappeared while it was driving, and the base braked."""
         node.context.graph.add_listener(self._on_graph_change)
         node.add_on_destroy(lambda: node.context.graph.remove_listener(self._on_graph_change))
-        node.create_subscription("geometry_msgs/msg/Twist", "cmd_vel", self._on_twist, QoSProfile(depth=1))
-        node.create_subscription(
-            "geometry_msgs/msg/TwistStamped", "cmd_vel", self._on_twist_stamped, QoSProfile(depth=1)
-        )
+        for command, callback in ((topics.CMD_VEL, self._on_twist), (topics.CMD_VEL_STAMPED, self._on_twist_stamped)):
+            node.create_subscription(command.type, command.name, callback, command.qos(depth=1))
         node.create_service("std_srvs/srv/SetBool", "e_stop", self._on_estop)
         self.timer = node.create_timer(1.0 / self.config.control_rate, self._on_timer) if run_timer else None
 
@@ -163,24 +149,12 @@ class BaseControllerNode:
         t = self._types
         stamp_ns = round(now * 1e9)
         odom = output.odometry
-        quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(odom.theta / 2), w=math.cos(odom.theta / 2))
-        vec3 = t["geometry_msgs/msg/Vector3"]
-        msg = t["nav_msgs/msg/Odometry"](
-            header=header(self.odom_frame, stamp_ns),
-            child_frame_id=self.base_frame,
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                pose=t["geometry_msgs/msg/Pose"](
-                    position=t["geometry_msgs/msg/Point"](x=odom.x, y=odom.y, z=0.0), orientation=quat
-                ),
-                covariance=np.ascontiguousarray(odom.pose_covariance, dtype=np.float64).reshape(36),
-            ),
-            twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=t["geometry_msgs/msg/Twist"](
-                    linear=vec3(x=odom.v, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=odom.omega)
-                ),
-                covariance=np.ascontiguousarray(odom.twist_covariance, dtype=np.float64).reshape(36),
-            ),
-        )
+        pose = planar_pose_msg(odom.x, odom.y, odom.theta)
+        msg = odometry_msg(
+            pose, frame_id=self.odom_frame, child_frame_id=self.base_frame, stamp_ns=stamp_ns,
+            linear=(odom.v, 0.0, 0.0), angular=(0.0, 0.0, odom.omega),
+            pose_covariance=odom.pose_covariance, twist_covariance=odom.twist_covariance,
+        )  # fmt: skip
         self.odom_pub.publish(msg)
         self.joint_pub.publish(
             t["sensor_msgs/msg/JointState"](
@@ -192,9 +166,4 @@ class BaseControllerNode:
             )
         )
         if self.tf_pub is not None:
-            transform = t["geometry_msgs/msg/TransformStamped"](
-                header=header(self.odom_frame, stamp_ns),
-                child_frame_id=self.base_frame,
-                transform=t["geometry_msgs/msg/Transform"](translation=vec3(x=odom.x, y=odom.y, z=0.0), rotation=quat),
-            )
-            self.tf_pub.publish(t["tf2_msgs/msg/TFMessage"](transforms=[transform]))
+            self.tf_pub.publish(tf_msg(pose, self.odom_frame, self.base_frame, stamp_ns))

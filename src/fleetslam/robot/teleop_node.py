@@ -17,9 +17,10 @@ from typing import Any, TextIO
 
 from fleetslam._imports import require
 from fleetslam.errors import FleetslamError
-from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.typesys import get_type, header
+from fleetslam.middleware import Node
+from fleetslam.msg.typesys import get_type, header
 from fleetslam.robot.teleop import KEYBOARD_HELP, CommandGate, JoyPreset, JoyTeleop, KeyboardTeleop
+from fleetslam.topics import CMD_VEL, CMD_VEL_STAMPED
 
 log = logging.getLogger(__name__)
 
@@ -29,15 +30,17 @@ _QUIT_KEYS = frozenset({"\x03", "\x04"})  # Ctrl-C, Ctrl-D (raw mode delivers th
 class TwistPublisher:
     """Publishes (v, ω) as geometry_msgs/msg/Twist, or TwistStamped when ``stamped``."""
 
-    def __init__(self, node: Node, topic: str = "cmd_vel", *, stamped: bool = False, frame_id: str = "base_link"):
+    def __init__(
+        self, node: Node, topic: str = CMD_VEL.name, *, stamped: bool = False, frame_id: str = "base_link"
+    ) -> None:
         self.node = node
         self.stamped = stamped
         self.frame_id = frame_id
         self._twist = get_type("geometry_msgs/msg/Twist")
         self._vector = get_type("geometry_msgs/msg/Vector3")
         self._stamped = get_type("geometry_msgs/msg/TwistStamped")
-        type_name = "geometry_msgs/msg/TwistStamped" if stamped else "geometry_msgs/msg/Twist"
-        self.publisher = node.create_publisher(type_name, topic, QoSProfile(depth=1))
+        contract = CMD_VEL_STAMPED if stamped else CMD_VEL
+        self.publisher = node.create_publisher(contract.type, topic, contract.qos())
 
     @property
     def topic(self) -> str:

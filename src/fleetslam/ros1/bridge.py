@@ -26,8 +26,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from fleetslam.errors import FleetslamError, MiddlewareError
-from fleetslam.middleware import Node, QoSProfile, typesys
+from fleetslam.middleware import Node, QoSProfile
 from fleetslam.middleware.node import Client, Publisher
+from fleetslam.msg import typesys
 from fleetslam.ros1 import messages
 from fleetslam.ros1.messages import Ros1ServiceType
 from fleetslam.ros1.node import Ros1Node, Ros1Publisher

@@ -22,7 +22,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from fleetslam.errors import MessageError
-from fleetslam.middleware import typesys
+from fleetslam.msg import typesys
 
 TF_MESSAGE = "geometry_msgs/TransformStamped[] transforms\n"
 

@@ -1,4 +1,5 @@
-"""Pinhole intrinsics and a Kinect v1-like depth sensor model (pure: arrays in, arrays out).
+"""The simulated camera: its intrinsics from the configuration and a Kinect v1-like depth sensor model (pure:
+arrays in, arrays out).
 
 Depth images are z-depth along the optical axis in metres, 0 where invalid. The optical frame is the ROS/
 OpenCV one: x right, y down, z forward.
@@ -12,60 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam.intrinsics import Intrinsics
 from fleetslam.sim.config import CameraConfig
 
-
-@dataclass(frozen=True)
-class CameraIntrinsics:
-    """Pinhole intrinsics with pixel centres at integer coordinates (OpenCV convention)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    @classmethod
-    def from_focal(cls, focal_length: float, width: int, height: int) -> CameraIntrinsics:
-        """Square pixels, principal point at the image centre."""
-        return cls(focal_length, focal_length, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
-
-    @property
-    def K(self) -> NDArray[np.float64]:
-        """3×3 camera matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
-    def fovy_deg(self) -> float:
-        """Vertical field of view, degrees."""
-        return math.degrees(2.0 * math.atan(self.height / (2.0 * self.fy)))
-
-    @property
-    def fovx_deg(self) -> float:
-        """Horizontal field of view, degrees."""
-        return math.degrees(2.0 * math.atan(self.width / (2.0 * self.fx)))
-
-    def scaled(self, width: int, height: int) -> CameraIntrinsics:
-        """The same optics at another resolution."""
-        sx, sy = width / self.width, height / self.height
-        return CameraIntrinsics(
-            self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, width, height
-        )
-
-    def backproject_image(self, depth: NDArray[np.floating]) -> NDArray[np.float64]:
-        """(H, W, 3) points in the optical frame for every pixel (invalid depth gives z = 0 points)."""
-        h, w = depth.shape
-        u = np.arange(w, dtype=np.float64)[None, :]
-        v = np.arange(h, dtype=np.float64)[:, None]
-        z = depth.astype(np.float64)
-        return np.stack(((u - self.cx) / self.fx * z, (v - self.cy) / self.fy * z, z), axis=-1)
-
-    def backproject(self, depth: NDArray[np.floating]) -> NDArray[np.float64]:
-        """(N, 3) points in the optical frame of the valid (finite, > 0) pixels, row-major order."""
-        points = self.backproject_image(depth)
-        valid = np.isfinite(depth) & (depth > 0)
-        return points[valid]
+CameraIntrinsics = Intrinsics
+"""The simulator's name for :class:`fleetslam.intrinsics.Intrinsics` (the same class)."""
 
 
 @dataclass(frozen=True)
@@ -81,7 +33,7 @@ class KinectModel:
       and on both sides of depth discontinuities larger than ``edge_jump``·z.
     """
 
-    intrinsics: CameraIntrinsics
+    intrinsics: Intrinsics
     min_depth: float = 0.5
     max_depth: float = 4.5
     noise_coefficient: float = 1.43e-3
@@ -157,16 +109,14 @@ class KinectModel:
         return measured.astype(np.float32)
 
 
-def intrinsics_from_config(
-    config: CameraConfig, width: int | None = None, height: int | None = None
-) -> CameraIntrinsics:
+def intrinsics_from_config(config: CameraConfig, width: int | None = None, height: int | None = None) -> Intrinsics:
     """Intrinsics of the configured camera at its resolution (or at ``width`` × ``height``)."""
     w = config.width if width is None else width
     h = config.height if height is None else height
-    return CameraIntrinsics.from_focal(config.focal_length * w / 640.0, w, h)
+    return Intrinsics.from_focal(config.focal_length * w / 640.0, w, h)
 
 
-def kinect_from_config(config: CameraConfig, intrinsics: CameraIntrinsics) -> KinectModel:
+def kinect_from_config(config: CameraConfig, intrinsics: Intrinsics) -> KinectModel:
     """The sensor model of the configured camera."""
     return KinectModel(
         intrinsics,

@@ -22,8 +22,8 @@ from fleetslam._imports import require
 from fleetslam.config import dump_config
 from fleetslam.errors import DatasetError, SimulationError
 from fleetslam.geometry import pose_from_planar
+from fleetslam.intrinsics import Intrinsics
 from fleetslam.robot.autopilot import Autopilot, get_route
-from fleetslam.sim.camera import CameraIntrinsics
 from fleetslam.sim.config import SimConfig
 from fleetslam.sim.plant import Plant
 from fleetslam.trajectory import Trajectory, write_tum
@@ -43,7 +43,7 @@ class ExportResult:
     duration: float
     """Simulated seconds covered by the frames."""
     route_completed: bool
-    intrinsics: CameraIntrinsics
+    intrinsics: Intrinsics
     groundtruth: Trajectory
     """T_world_optical at every frame."""
 
@@ -54,7 +54,7 @@ def depth_to_png16(depth: NDArray[np.floating], scale: float = DEPTH_SCALE) -> N
     return np.clip(np.round(d * scale), 0, 65535).astype(np.uint16)
 
 
-def write_camera_files(out: Path, intrinsics: CameraIntrinsics, depth_scale: float = DEPTH_SCALE) -> None:
+def write_camera_files(out: Path, intrinsics: Intrinsics, depth_scale: float = DEPTH_SCALE) -> None:
     """``camera.txt`` (one line: fx fy cx cy width height depth_scale) and ``intrinsics.yaml``."""
     k = intrinsics
     (out / "camera.txt").write_text(

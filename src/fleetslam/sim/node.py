@@ -19,15 +19,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from fleetslam.geometry import pose_to_quat
-from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.middleware.conversions import transform_msg
-from fleetslam.middleware.typesys import get_type, header, stamp_from_ns
+from fleetslam import topics
+from fleetslam.middleware import Context, Node, Publisher
+from fleetslam.msg.conversions import camera_info_msg, image_msg, odometry_msg, pose_msg, transform_msg
+from fleetslam.msg.typesys import get_type, stamp_from_ns
 from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.robot.node import BaseControllerNode
-from fleetslam.sim.camera import CameraIntrinsics
 from fleetslam.sim.config import SimConfig
 from fleetslam.sim.plant import Plant, RGBDFrame
 
@@ -39,76 +36,17 @@ OPERATOR_TAKEOVER_S = 3.0
 WORLD_FRAME = "world"
 
 
-def camera_info_msg(intrinsics: CameraIntrinsics, frame_id: str, stamp_ns: int) -> Any:
-    """sensor_msgs/msg/CameraInfo of an ideal pinhole camera."""
-    k = intrinsics
-    roi = get_type("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return get_type("sensor_msgs/msg/CameraInfo")(
-        header=header(frame_id, stamp_ns),
-        height=k.height,
-        width=k.width,
-        distortion_model="plumb_bob",
-        d=np.zeros(5),
-        k=k.K.reshape(9).astype(np.float64),
-        r=np.eye(3).reshape(9),
-        p=np.array([k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]),
-        binning_x=0,
-        binning_y=0,
-        roi=roi,
-    )
-
-
 def image_msgs(frame: RGBDFrame, frame_id: str) -> tuple[Any, Any]:
-    """(rgb8 Image, 32FC1 Image) of a frame."""
-    image_type = get_type("sensor_msgs/msg/Image")
+    """(rgb8 Image, 32FC1 Image) of a rendered frame."""
     stamp_ns = round(frame.stamp * 1e9)
-    h, w = frame.depth.shape
-    rgb = image_type(
-        header=header(frame_id, stamp_ns),
-        height=h,
-        width=w,
-        encoding="rgb8",
-        is_bigendian=0,
-        step=w * 3,
-        data=np.ascontiguousarray(frame.rgb).reshape(-1),
+    return (
+        image_msg(frame.rgb, "rgb8", frame_id=frame_id, stamp_ns=stamp_ns),
+        image_msg(frame.depth, "32FC1", frame_id=frame_id, stamp_ns=stamp_ns),
     )
-    depth = image_type(
-        header=header(frame_id, stamp_ns),
-        height=h,
-        width=w,
-        encoding="32FC1",
-        is_bigendian=0,
-        step=w * 4,
-        data=np.ascontiguousarray(frame.depth, dtype="<f4").view(np.uint8).reshape(-1),
-    )
-    return rgb, depth
 
 
-def odometry_msg(pose: np.ndarray, linear: np.ndarray, angular: np.ndarray, stamp_ns: int) -> Any:
-    """nav_msgs/msg/Odometry of a ground-truth pose (world frame) and body twist."""
-    t, q = pose_to_quat(pose)
-    T = get_type
-    vec3 = T("geometry_msgs/msg/Vector3")
-    return T("nav_msgs/msg/Odometry")(
-        header=header(WORLD_FRAME, stamp_ns),
-        child_frame_id="base_link",
-        pose=T("geometry_msgs/msg/PoseWithCovariance")(
-            pose=T("geometry_msgs/msg/Pose")(
-                position=T("geometry_msgs/msg/Point")(x=float(t[0]), y=float(t[1]), z=float(t[2])),
-                orientation=T("geometry_msgs/msg/Quaternion")(
-                    x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
-                ),
-            ),
-            covariance=np.zeros(36),
-        ),
-        twist=T("geometry_msgs/msg/TwistWithCovariance")(
-            twist=T("geometry_msgs/msg/Twist")(
-                linear=vec3(x=float(linear[0]), y=float(linear[1]), z=float(linear[2])),
-                angular=vec3(x=float(angular[0]), y=float(angular[1]), z=float(angular[2])),
-            ),
-            covariance=np.zeros(36),
-        ),
-    )
+def _publisher(node: Node, topic: topics.Topic) -> Publisher:
+    return node.create_publisher(topic.type, topic.name, topic.qos())
 
 
 @dataclass
@@ -159,7 +97,7 @@ class SimNode:
         self.intrinsics = plant.intrinsics_at(self.width, self.height)
         self.rate = rate
         self.sim_node = Node("sim", context=context, namespace="/", statistics_period_s=0)
-        self.clock_pub = self.sim_node.create_publisher("rosgraph_msgs/msg/Clock", "/clock", QoSProfile(depth=1))
+        self.clock_pub = _publisher(self.sim_node, topics.CLOCK)
         route = get_route(autopilot) if autopilot else None
         self.robots: dict[str, _RobotIo] = {}
         self._static_tf: list[Any] = []
@@ -168,22 +106,17 @@ class SimNode:
             base = BaseControllerNode(
                 node, plant.wheels(name), config=plant.config.robot, clock=lambda: plant.sim_time, run_timer=False
             )
-            sensor_qos = QoSProfile(depth=2)
             self.robots[name] = _RobotIo(
                 node=node,
                 base=base,
-                rgb_pub=node.create_publisher("sensor_msgs/msg/Image", "camera/rgb/image_raw", sensor_qos),
-                depth_pub=node.create_publisher("sensor_msgs/msg/Image", "camera/depth/image_raw", sensor_qos),
-                rgb_info_pub=node.create_publisher("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", sensor_qos),
-                depth_info_pub=node.create_publisher(
-                    "sensor_msgs/msg/CameraInfo", "camera/depth/camera_info", sensor_qos
-                ),
-                truth_pub=node.create_publisher("nav_msgs/msg/Odometry", "ground_truth/odom", QoSProfile(depth=10)),
+                rgb_pub=_publisher(node, topics.RGB_IMAGE),
+                depth_pub=_publisher(node, topics.DEPTH_IMAGE),
+                rgb_info_pub=_publisher(node, topics.CAMERA_INFO),
+                depth_info_pub=_publisher(node, topics.DEPTH_CAMERA_INFO),
+                truth_pub=_publisher(node, topics.GROUND_TRUTH_ODOM),
                 autopilot=Autopilot.for_route(route, (0.0, 0.0, 0.0), cyclic=laps) if route is not None else None,
             )
-            static_tf = node.create_publisher(
-                "tf2_msgs/msg/TFMessage", "tf_static", QoSProfile(durability="transient_local", depth=1)
-            )
+            static_tf = _publisher(node, topics.TF_STATIC)
             static_tf.publish(transform_msg(plant.camera_extrinsics(name), "base_link", OPTICAL_FRAME, 0))
             self._static_tf.append(static_tf)
         self.frames_published = 0
@@ -204,13 +137,17 @@ class SimNode:
         self.clock_pub.publish(get_type("rosgraph_msgs/msg/Clock")(clock=stamp_from_ns(stamp_ns)))
         for name, io in self.robots.items():
             linear, angular = self.plant.base_twist(name)
-            io.truth_pub.publish(odometry_msg(self.plant.base_pose(name), linear, angular, stamp_ns))
+            truth = pose_msg(self.plant.base_pose(name))
+            io.truth_pub.publish(
+                odometry_msg(truth, frame_id=WORLD_FRAME, child_frame_id="base_link", stamp_ns=stamp_ns,
+                             linear=linear, angular=angular)
+            )  # fmt: skip
 
     def _publish_cameras(self) -> None:
         for name, io in self.robots.items():
             frame = self.plant.render(name, width=self.width, height=self.height)
             rgb, depth = image_msgs(frame, OPTICAL_FRAME)
-            info = camera_info_msg(self.intrinsics, OPTICAL_FRAME, round(frame.stamp * 1e9))
+            info = camera_info_msg(self.intrinsics, frame_id=OPTICAL_FRAME, stamp_ns=round(frame.stamp * 1e9))
             io.rgb_pub.publish(rgb)
             io.depth_pub.publish(depth)
             io.rgb_info_pub.publish(info)

@@ -20,8 +20,9 @@ from numpy.typing import NDArray
 from fleetslam._imports import require
 from fleetslam.errors import SimulationError
 from fleetslam.geometry import invert, make_pose, yaw_of
+from fleetslam.intrinsics import Intrinsics
 from fleetslam.robot.controller import BaseController, ControllerOutput
-from fleetslam.sim.camera import CameraIntrinsics, KinectModel, intrinsics_from_config, kinect_from_config
+from fleetslam.sim.camera import KinectModel, intrinsics_from_config, kinect_from_config
 from fleetslam.sim.config import RobotPlacement, SimConfig
 from fleetslam.sim.rendering import RGBDRenderer
 from fleetslam.sim.robot_model import RobotNames, robot_xml
@@ -53,7 +54,7 @@ class RGBDFrame:
     """Simulated time, s."""
     T_world_camera: NDArray[np.float64]
     """Pose of the optical frame (x right, y down, z forward) in the world."""
-    intrinsics: CameraIntrinsics
+    intrinsics: Intrinsics
 
 
 class SimWheels:
@@ -263,7 +264,7 @@ class Plant:
             self._renderers[key] = renderer
         return renderer
 
-    def intrinsics_at(self, width: int | None = None, height: int | None = None) -> CameraIntrinsics:
+    def intrinsics_at(self, width: int | None = None, height: int | None = None) -> Intrinsics:
         """The camera intrinsics at a resolution (default: the configured one)."""
         return intrinsics_from_config(self.config.camera, width, height)
 

@@ -31,14 +31,25 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
+from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
-from fleetslam.datasets.base import Intrinsics, RGBDFrame
+from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import UnsafePathError
-from fleetslam.geometry import invert, pose_to_quat
-from fleetslam.middleware import Node, QoSProfile
-from fleetslam.middleware.conversions import pose_matrix, transform_matrix, transform_msg
-from fleetslam.middleware.typesys import get_type, header, message_from_dict, ns_from_stamp, stamp_from_ns
+from fleetslam.geometry import invert
+from fleetslam.middleware import Node
+from fleetslam.msg.conversions import (
+    depth_from_image,
+    intrinsics_from_camera_info,
+    odometry_msg,
+    pose_matrix,
+    pose_msg,
+    pose_msgs,
+    rgb_from_image,
+    transform_matrix,
+    transform_msg,
+)
+from fleetslam.msg.typesys import get_type, header, message_from_dict, ns_from_stamp, stamp_from_ns
 from fleetslam.save_paths import save_path
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.frame_queue import FramePair, FrameQueue
@@ -89,32 +100,6 @@ class SlamNodeConfig(ConfigModel):
     cross-agent subscription; kept in ``peer_graphs`` / ``peer_keyframes`` for fusion and inter-agent loops)."""
 
 
-def image_to_array(msg: Any) -> np.ndarray:
-    """RGB uint8 (H, W, 3) or depth float32 metres (H, W) of a sensor_msgs/Image, honouring its row ``step`` and
-    ``is_bigendian``; raises ValueError naming the encoding or size at fault."""
-    h, w, enc = int(msg.height), int(msg.width), msg.encoding
-    channels, dtype = {"rgb8": (3, "u1"), "bgr8": (3, "u1"), "32FC1": (1, "f4"), "16UC1": (1, "u2")}.get(enc, (0, ""))
-    if not channels:
-        raise ValueError(f"unsupported image encoding {enc!r}")
-    item = np.dtype(dtype).itemsize
-    step = int(msg.step) or w * channels * item
-    raw = np.frombuffer(bytes(msg.data), np.uint8)
-    if h <= 0 or w <= 0 or step < w * channels * item or len(raw) < step * (h - 1) + w * channels * item:
-        raise ValueError(f"{enc} image {w}x{h} with step {step} does not fit its {len(raw)} data bytes")
-    rows = np.lib.stride_tricks.as_strided(raw, (h, w * channels * item), (step, 1))
-    order = ">" if msg.is_bigendian else "<"
-    pixels = np.ascontiguousarray(rows).view(order + dtype).reshape(h, w, channels) if item > 1 else rows
-    if enc == "rgb8":
-        return np.ascontiguousarray(pixels.reshape(h, w, 3))
-    if enc == "bgr8":
-        return np.ascontiguousarray(pixels.reshape(h, w, 3)[:, :, ::-1])
-    if enc == "32FC1":
-        depth = pixels.reshape(h, w).astype(np.float32)
-        depth[~np.isfinite(depth)] = 0.0
-        return depth
-    return pixels.reshape(h, w).astype(np.float32) / 1000.0
-
-
 def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
     """The converted pose, or None when the message's is not finite or its quaternion is zero."""
     try:
@@ -122,30 +107,6 @@ def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
     except ValueError:
         return None
     return pose if np.isfinite(pose).all() else None
-
-
-def _pose_msgs(poses: list[np.ndarray]) -> list[Any]:
-    """geometry_msgs/Pose of many 4×4 poses (the rotations converted in one batch)."""
-    if not poses:
-        return []
-    from scipy.spatial.transform import Rotation
-
-    stacked = np.stack(poses)
-    quats = Rotation.from_matrix(stacked[:, :3, :3]).as_quat()  # x, y, z, w
-    pose, point, quaternion = (get_type(f"geometry_msgs/msg/{t}") for t in ("Pose", "Point", "Quaternion"))
-    return [
-        pose(position=point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
-             orientation=quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
-        for t, q in zip(stacked[:, :3, 3], quats, strict=True)
-    ]  # fmt: skip
-
-
-def _pose_dict(pose: np.ndarray) -> dict[str, Any]:
-    t, q = pose_to_quat(pose)
-    return {
-        "position": dict(zip("xyz", t.tolist(), strict=True)),
-        "orientation": dict(zip("xyzw", q.tolist(), strict=True)),
-    }
 
 
 class SlamNode:
@@ -176,43 +137,37 @@ class SlamNode:
         self.priors_used = 0
         self.bad_inputs = 0
         """Odometry / tf_static messages ignored because their pose was not finite or not a rotation."""
-        qos = QoSProfile(depth=5)
-        self.odom_pub = node.create_publisher("nav_msgs/msg/Odometry", "slam/odom", qos)
-        self.path_pub = node.create_publisher("nav_msgs/msg/Path", "path", QoSProfile(depth=1))
-        self.tf_pub = node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=10))
-        self.live_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "liveframes", qos)
-        self.keyframe_pub = node.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
-        self.graph_pub = node.create_publisher(
-            "fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(durability="transient_local", depth=1)
-        )
-        self.diagnostics_pub = node.create_publisher(
-            "diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5)
-        )
+
+        def publisher(topic: topics.Topic) -> Any:
+            return node.create_publisher(topic.type, topic.name, topic.qos())
+
+        def subscribe(topic: topics.Topic, callback: Callable[[Any], None], depth: int, name: str | None = None) -> Any:
+            return node.create_subscription(topic.type, name or topic.name, callback, topic.qos(depth=depth))
+
+        self.odom_pub = publisher(topics.SLAM_ODOM)
+        self.path_pub = publisher(topics.PATH)
+        self.tf_pub = publisher(topics.TF)
+        self.live_pub = publisher(topics.LIVEFRAMES)
+        self.keyframe_pub = publisher(topics.KEYFRAMES)
+        self.graph_pub = publisher(topics.GRAPH)
+        self.diagnostics_pub = publisher(topics.SLAM_DIAGNOSTICS)
         # The frame queue drops stale frames itself (and counts them); the subscriptions only bridge a busy moment.
-        images = QoSProfile(depth=self.config.max_pending)
+        pending = self.config.max_pending
         self._image_subscriptions = [
-            node.create_subscription("sensor_msgs/msg/Image", "camera/rgb/image_raw", self.on_rgb, images),
-            node.create_subscription("sensor_msgs/msg/Image", "camera/depth/image_raw", self.on_depth, images),
+            subscribe(topics.RGB_IMAGE, self.on_rgb, pending),
+            subscribe(topics.DEPTH_IMAGE, self.on_depth, pending),
         ]
-        node.create_subscription("sensor_msgs/msg/CameraInfo", "camera/rgb/camera_info", self.on_camera_info, qos)
+        subscribe(topics.CAMERA_INFO, self.on_camera_info, 5)
         if self.config.use_wheel_odometry:
             # Deep enough for several seconds of 50 Hz odometry: a starved process must not lose the wheel poses
             # it needs as priors for the frames it is still working through.
-            node.create_subscription("nav_msgs/msg/Odometry", "odom", self.on_odom, QoSProfile(depth=500))
-            node.create_subscription(
-                "tf2_msgs/msg/TFMessage", "tf_static", self.on_tf_static,
-                QoSProfile(durability="transient_local", depth=1),
-            )  # fmt: skip
+            subscribe(topics.ODOM, self.on_odom, 500)
+            subscribe(topics.TF_STATIC, self.on_tf_static, 1)
         self.peer_graphs: dict[str, Any] = {}
         self.peer_keyframes: dict[str, int] = {}
         for peer in self.config.peers:
-            node.create_subscription(
-                "fleetslam_msgs/msg/KeyframeGraph", f"/{peer}/graph", self.on_peer_graph,
-                QoSProfile(durability="transient_local", depth=1),
-            )  # fmt: skip
-            node.create_subscription(
-                "fleetslam_msgs/msg/Keyframe", f"/{peer}/keyframes", self.on_peer_keyframe, QoSProfile(depth=50)
-            )
+            subscribe(topics.GRAPH, self.on_peer_graph, 1, topics.GRAPH.of(peer))
+            subscribe(topics.KEYFRAMES, self.on_peer_keyframe, 50, topics.KEYFRAMES.of(peer))
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
@@ -235,8 +190,7 @@ class SlamNode:
 
     def _start_pipeline(self, msg: Any) -> None:
         if self.pipeline is None:
-            k = msg.k
-            intrinsics = Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height))
+            intrinsics = intrinsics_from_camera_info(msg)
             self.pipeline = SlamPipeline(self.config.slam, intrinsics=intrinsics, base_camera=self.base_camera)
             log.info("%s: SLAM started with fx=%.1f at %dx%d", self.agent, intrinsics.fx, msg.width, msg.height)
         self.camera_info = msg
@@ -332,8 +286,8 @@ class SlamNode:
         if prior is None and self.wheels_behind(stamp_ns / 1e9):
             self.counts["late_wheel_frames"] += 1
             return None
-        rgb, depth = image_to_array(pair.rgb), image_to_array(pair.depth)
-        if rgb.ndim != 3 or depth.shape != rgb.shape[:2]:
+        rgb, depth = rgb_from_image(pair.rgb), depth_from_image(pair.depth)
+        if depth.shape != rgb.shape[:2]:
             raise ValueError(f"colour {rgb.shape[:2]} and depth {depth.shape} images differ in size")
         self.priors_used += prior is not None
         frame = RGBDFrame(self.frames, stamp_ns / 1e9, rgb, depth, prior=prior)
@@ -401,16 +355,12 @@ class SlamNode:
         self.diagnostics_pub.publish(array)
 
     def publish_pose(self, stamp_ns: int, pose: np.ndarray) -> None:
-        odom = message_from_dict(
-            "nav_msgs/msg/Odometry",
-            {"child_frame_id": self.config.camera_frame, "pose": {"pose": _pose_dict(pose)}},
+        odom = odometry_msg(
+            pose_msg(pose), frame_id=self.config.map_frame, child_frame_id=self.config.camera_frame, stamp_ns=stamp_ns
         )
-        odom.header = header(self.config.map_frame, stamp_ns)
         self.odom_pub.publish(odom)
-        live = message_from_dict(
-            "fleetslam_msgs/msg/Keyframe", {"agent": self.agent, "id": self.frames, "pose": _pose_dict(pose)}
-        )
-        live.header = odom.header
+        live = message_from_dict("fleetslam_msgs/msg/Keyframe", {"agent": self.agent, "id": self.frames})
+        live.header, live.pose = odom.header, odom.pose.pose
         self.live_pub.publish(live)
 
     def publish_map_to_odom(self, stamp_ns: int, step: StepResult, prior: np.ndarray | None) -> None:
@@ -444,7 +394,7 @@ class SlamNode:
         keyframe_type = get_type("fleetslam_msgs/msg/Keyframe")
         msg = keyframe_type(
             header=header(self.config.map_frame, stamp_ns), agent=self.agent, id=keyframe_id,
-            pose=message_from_dict("geometry_msgs/msg/Pose", _pose_dict(pose)), camera_info=self.camera_info,
+            pose=pose_msg(pose), camera_info=self.camera_info,
             rgb_format="jpeg" if ok_rgb else "", rgb=jpeg.reshape(-1) if ok_rgb else np.zeros(0, np.uint8),
             depth_format="png16_mm" if ok_depth else "", depth=png.reshape(-1) if ok_depth else np.zeros(0, np.uint8),
             keypoints=np.asarray(result.keypoints, np.float32).reshape(-1),
@@ -469,12 +419,12 @@ class SlamNode:
         poses = self.pipeline.keyframe_poses()
         ids = sorted(poses)
         constraints = self.pipeline.graph.constraints()
-        pose_msgs = _pose_msgs([poses[i] for i in ids])
-        relative_msgs = _pose_msgs([c.transform for c in constraints])
+        keyframe_poses = pose_msgs([poses[i] for i in ids])
+        relative_msgs = pose_msgs([c.transform for c in constraints])
         constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
         stamp = header(self.config.map_frame, stamp_ns)
         graph = get_type("fleetslam_msgs/msg/KeyframeGraph")(
-            header=stamp, agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32), poses=pose_msgs,
+            header=stamp, agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32), poses=keyframe_poses,
             stamps=[stamp_from_ns(round(self.pipeline.keyframe_stamps[i] * 1e9)) for i in ids],
             constraints=[
                 constraint_type(
@@ -488,7 +438,7 @@ class SlamNode:
         )  # fmt: skip
         self.graph_pub.publish(graph)
         pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
-        stamped = [pose_stamped(header=stamp, pose=p) for p in pose_msgs]
+        stamped = [pose_stamped(header=stamp, pose=p) for p in keyframe_poses]
         self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=stamp, poses=stamped))
 
     # -- services -----------------------------------------------------------------------------------------------

@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from fleetslam import topics
 from fleetslam.errors import MessageError
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.middleware.typesys import deserialize, get_type
-from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, pointcloud2_xyz, yaw_from_quaternion
+from fleetslam.msg.conversions import depth_from_image, image_to_array, pointcloud2_xyz, rgb_from_image
+from fleetslam.msg.typesys import deserialize, get_type
+from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
 
 log = logging.getLogger(__name__)
 
@@ -76,9 +78,8 @@ class StationBridge:
         self._estop_clients: dict[str, Any] = {}
         self._twist = get_type("geometry_msgs/msg/Twist")
         self._vector = get_type("geometry_msgs/msg/Vector3")
-        self.node.create_subscription(
-            "fleetslam_msgs/msg/TopicStatistics", "/statistics", self._on_statistics, QoSProfile(depth=1000)
-        )
+        statistics = topics.STATISTICS
+        self.node.create_subscription(statistics.type, statistics.name, self._on_statistics, statistics.qos(depth=1000))
         self._add_agent(FLEET_AGENT, fleet=True)
         self.node.create_timer(1.0, self._discover)
         self.node.create_timer(1.0, self._send_stats)
@@ -104,27 +105,26 @@ class StationBridge:
     def _add_agent(self, name: str, fleet: bool = False) -> None:
         view = AgentView(name, VoxelDiff(self.voxel_resolution))
         self.agents[name] = view
-        ns = f"/{name}"
         sub = self.node.create_subscription
-        sub("sensor_msgs/msg/PointCloud2", f"{ns}/map/occupied", lambda m: self._on_cloud(view, m), QoSProfile(depth=1))
+        # The agent's map and graph are latched: a console started later gets them at once.
+        cloud = topics.FLEET_MAP_OCCUPIED if fleet else topics.MAP_OCCUPIED
+        sub(cloud.type, cloud.of(name), lambda m: self._on_cloud(view, m), cloud.qos(depth=1))
         if fleet:
             return
-        for source, topic in (("odom", "odom"), ("slam", "slam/odom"), ("truth", "ground_truth/odom")):
-            sub("nav_msgs/msg/Odometry", f"{ns}/{topic}", self._odom_callback(view, source), QoSProfile(depth=1))
-        sub("nav_msgs/msg/Path", f"{ns}/path", lambda m: self._on_path(view, "slam", m), QoSProfile(depth=1))
-        sub("fleetslam_msgs/msg/KeyframeGraph", f"{ns}/graph", lambda m: self._on_graph(view, m), QoSProfile(depth=1))
-        for kind, topic in (("rgb", "camera/rgb/image_raw"), ("depth", "camera/depth/image_raw")):
+        for source, odom in (("odom", topics.ODOM), ("slam", topics.SLAM_ODOM), ("truth", topics.GROUND_TRUTH_ODOM)):
+            sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=1))
+        path, graph = topics.PATH, topics.GRAPH
+        sub(path.type, path.of(name), lambda m: self._on_path(view, "slam", m), path.qos(depth=1))
+        sub(graph.type, graph.of(name), lambda m: self._on_graph(view, m), graph.qos(depth=1))
+        for kind, image in (("rgb", topics.RGB_IMAGE), ("depth", topics.DEPTH_IMAGE)):
             # Raw: an image is decoded only when a console shows that camera and its period is due (the
             # station otherwise deserialised every frame of every camera, ~8 MB/s in the demo, for nothing).
-            sub(
-                "sensor_msgs/msg/Image",
-                f"{ns}/{topic}",
-                self._image_callback(view, kind),
-                QoSProfile(depth=1, reliability="best_effort"),
-                raw=True,
-            )
-        self._cmd_publishers[name] = self.node.create_publisher("geometry_msgs/msg/Twist", f"{ns}/cmd_vel")
-        self._estop_clients[name] = self.node.create_client("std_srvs/srv/SetBool", f"{ns}/e_stop")
+            sub(image.type, image.of(name), self._image_callback(view, kind), image.qos(depth=1, best_effort=True),
+                raw=True)  # fmt: skip
+        # Depth 10, the middleware's default that the console has always published with.
+        cmd_vel = topics.CMD_VEL
+        self._cmd_publishers[name] = self.node.create_publisher(cmd_vel.type, cmd_vel.of(name), cmd_vel.qos(depth=10))
+        self._estop_clients[name] = self.node.create_client("std_srvs/srv/SetBool", f"/{name}/e_stop")
 
     # -- subscriptions -----------------------------------------------------------------------------------------
     def _odom_callback(self, view: AgentView, source: str) -> Callable[[Any], None]:
@@ -134,7 +134,12 @@ class StationBridge:
         return lambda payload: self._on_image(view, kind, payload)
 
     def _on_cloud(self, view: AgentView, msg: Any) -> None:
-        points = pointcloud2_xyz(msg)
+        try:
+            xyz = pointcloud2_xyz(msg)
+        except MessageError as err:
+            log.warning("%s point cloud: %s", view.name, err)
+            return
+        points = xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64)
         added, removed = view.voxels.update(points)
         if len(added) or len(removed):
             self.emit(
@@ -251,30 +256,22 @@ class StationBridge:
 
 
 def encode_image(msg: Any, kind: str) -> tuple[str, bytes]:
-    """JPEG of an rgb8/bgr8/mono8 image, or a colour-mapped JPEG of a 32FC1 (m) / 16UC1 (mm) depth image."""
+    """JPEG of an rgb8/bgr8/rgba8/bgra8/mono8 image, or a colour-mapped JPEG of a 32FC1 (m) / 16UC1 (mm) depth
+    image (rows decoded with their ``step`` and byte order)."""
     import cv2
 
-    height, width, encoding = int(msg.height), int(msg.width), msg.encoding
-    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     image: Any
-    if encoding in ("rgb8", "bgr8"):
-        image = raw[: height * width * 3].reshape(height, width, 3)
-        if encoding == "rgb8":
-            image = image[:, :, ::-1]
-    elif encoding == "mono8":
-        image = raw[: height * width].reshape(height, width)
-    elif encoding in ("32FC1", "16UC1"):
-        if encoding == "32FC1":
-            depth = raw[: height * width * 4].view(np.float32).reshape(height, width)
-        else:
-            depth = raw[: height * width * 2].view(np.uint16).reshape(height, width).astype(np.float32) / 1000.0
-        valid = np.isfinite(depth) & (depth > 0)
-        scaled = np.zeros((height, width), dtype=np.uint8)
+    if msg.encoding in ("32FC1", "16UC1", "mono16"):
+        depth = depth_from_image(msg)
+        valid = depth > 0
+        scaled = np.zeros(depth.shape, dtype=np.uint8)
         scaled[valid] = np.clip(255.0 * (1.0 - np.clip(depth[valid], 0.0, 5.0) / 5.0), 1, 255).astype(np.uint8)
         image = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
         image[~valid] = 0
+    elif msg.encoding == "mono8":
+        image = image_to_array(msg)
     else:
-        raise ValueError(f"unsupported image encoding {encoding!r}")
+        image = rgb_from_image(msg)[:, :, ::-1]  # OpenCV writes BGR
     ok, buffer = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, 80])
     if not ok:
         raise ValueError("JPEG encoding failed")

@@ -127,20 +127,3 @@ def _clamp(value: float, limit: float) -> float:
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Heading of a ROS quaternion."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def pointcloud2_xyz(msg: object) -> NDArray[np.float64]:
-    """``(N, 3)`` x, y, z of a sensor_msgs/PointCloud2 with float32 x/y/z fields (NaN rows dropped)."""
-    fields = {f.name: f for f in msg.fields}  # type: ignore[attr-defined]
-    if not {"x", "y", "z"} <= fields.keys():
-        raise ValueError("point cloud has no x, y, z fields")
-    step = int(msg.point_step)  # type: ignore[attr-defined]
-    count = int(msg.width) * int(msg.height)  # type: ignore[attr-defined]
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)  # type: ignore[attr-defined]
-    if count == 0 or data.size < count * step:
-        return np.zeros((0, 3))
-    rows = data[: count * step].reshape(count, step)
-    xyz = np.stack(
-        [rows[:, fields[a].offset : fields[a].offset + 4].copy().view(np.float32)[:, 0] for a in "xyz"], axis=1
-    ).astype(np.float64)
-    return xyz[np.isfinite(xyz).all(axis=1)]

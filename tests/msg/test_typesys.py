@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fleetslam.errors import MessageError
-from fleetslam.middleware import typesys as ts
+from fleetslam.msg import typesys as ts
 
 SPEC_HASHES = {
     "std_msgs/msg/String": "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
@@ -402,9 +402,11 @@ def test_payload_must_be_bytes() -> None:
 
 def test_typestore_is_built_lazily_once_across_threads() -> None:
     script = """
+import sys
 import threading
-from fleetslam.middleware import typesys
+from fleetslam.msg import typesys
 assert typesys._store is None, "built at import time"
+assert "zenoh" not in sys.modules, "the type layer imports Zenoh"
 stores = []
 threads = [threading.Thread(target=lambda: stores.append(typesys.get_typestore())) for _ in range(8)]
 for thread in threads:
@@ -495,3 +497,11 @@ def test_trailing_bytes_beyond_padding_are_malformed() -> None:
         ts.deserialize(payload + b"\x00" * 8, "std_msgs/msg/String")
     with pytest.raises(MessageError, match="unknown message type"):
         ts.deserialize(payload, "std_msgs/msg/Strng")
+
+
+def test_the_middleware_re_exports_the_message_layer() -> None:
+    from fleetslam.middleware import typesys as old
+
+    assert old.get_typestore is ts.get_typestore and old.deserialize is ts.deserialize
+    assert set(old.__all__) == set(ts.__all__)
+    assert all(getattr(old, name) is getattr(ts, name) for name in ts.__all__)
