@@ -380,12 +380,14 @@ def run_offline(
     *,
     max_frames: int | None = None,
     show_progress: bool = True,
+    front_ends: Mapping[str, OdometryFactory] = FRONT_ENDS,
 ) -> SlamResult:
-    """Run the pipeline over a source and write trajectory.txt, keyframes.txt, map.db, config.yaml, stats.json."""
+    """Run the pipeline over a source and write trajectory.txt, keyframes.txt, odometry.txt, map.db (with loop
+    closure), config.yaml and stats.json; ``front_ends`` as :class:`SlamPipeline`'s."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.yaml").write_text(dump_config(config), encoding="utf-8")
-    pipeline = SlamPipeline(config, source)
+    pipeline = SlamPipeline(config, source, front_ends=front_ends)
     total = len(source) if max_frames is None else min(len(source), max_frames)
     bar: Any = None
     if show_progress:
