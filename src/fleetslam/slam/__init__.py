@@ -16,10 +16,6 @@ if TYPE_CHECKING:
     from fleetslam.slam.config import BackendConfig, FeatureConfig, OdometryConfig, SlamConfig
     from fleetslam.slam.database import MapDatabase
     from fleetslam.slam.features import FeatureExtractor, Features
-    from fleetslam.slam.loop_closure import LoopClosureDetector, LoopHypothesis, make_loop_closure_detector
-    from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
-    from fleetslam.slam.memory import Memory
-    from fleetslam.slam.node import SlamNode, SlamNodeConfig
     from fleetslam.slam.frontend import (
         FRONT_ENDS,
         KeyframeFeatures,
@@ -29,6 +25,10 @@ if TYPE_CHECKING:
         OdometryResult,
         make_odometry,
     )
+    from fleetslam.slam.loop_closure import LoopClosureDetector, LoopHypothesis, make_loop_closure_detector
+    from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
+    from fleetslam.slam.memory import Memory
+    from fleetslam.slam.node import SlamNode, SlamNodeConfig
     from fleetslam.slam.odometry import VisualOdometry
     from fleetslam.slam.pipeline import SlamPipeline, SlamResult, StepResult, run_offline
     from fleetslam.slam.signature import Link, LinkType, Signature
