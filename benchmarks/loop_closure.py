@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from fleetslam.geometry import pose_from_xyz_rpy
+from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
 from fleetslam.slam.loop_closure import make_loop_closure_detector
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.vocabulary import VisualVocabulary
@@ -80,7 +81,10 @@ def detector_benchmark(n_keyframes: int, n_features: int) -> dict[str, float]:
         flips = rng.integers(0, 256, size=(n_features, 8))
         np.bitwise_xor.at(desc, (np.arange(n_features)[:, None], flips // 8), (1 << (flips % 8)).astype(np.uint8))
         start = time.perf_counter()
-        hyp = detector.process(float(step), pose_from_xyz_rpy(10.0 * k, 0, 0, 0, 0, 0), uv, pts, desc)
+        observation = KeyframeObservation(
+            float(step), pose_from_xyz_rpy(10.0 * k, 0, 0, 0, 0, 0), KeyframeFeatures(uv, pts, desc)
+        )
+        hyp = detector.process(observation)
         times.append(time.perf_counter() - start)
         accepted += hyp.accepted
     arr = np.array(times) * 1e3

@@ -14,7 +14,19 @@ import fleetslam
 ROOT = Path(fleetslam.__file__).parent
 MIDDLEWARE = "fleetslam.middleware"
 #: Packages and modules (relative to src/fleetslam) that must not import the middleware, node modules excepted.
-PURE = ("slam", "mapping", "fusion", "robot", "sim", "datasets", "eval", "msg", "geometry.py", "trajectory.py")
+PURE = (
+    "slam",
+    "mapping",
+    "fusion",
+    "robot",
+    "sim",
+    "datasets",
+    "drivers",
+    "eval",
+    "msg",
+    "geometry.py",
+    "trajectory.py",
+)
 #: Those that may: besides node modules anywhere. ``topics.py`` holds the topic contracts that node modules share;
 #: its ``Topic.qos`` builds the middleware's QoSProfile (imported there, on first use).
 ALLOWED = ("middleware", "station", "launch", "cli", "ros1", "topics.py")

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.geometry import invert, pose_from_xyz_rpy, transform_points
+from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
 
 CAMERA_MATRIX = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 WIDTH, HEIGHT = 640, 480
@@ -28,12 +30,19 @@ def flip_bits(rng: np.random.Generator, descriptors: NDArray[np.uint8], bits: in
 
 @dataclass
 class Observation:
-    """What the pipeline hands the detector for one keyframe."""
+    """What a camera at ``pose`` sees of a place."""
 
     pose: NDArray[np.float64]
     keypoints: NDArray[np.float64]
     points3d: NDArray[np.float64]
     descriptors: NDArray[np.uint8]
+
+    def keyframe(
+        self, stamp: float, *, responses: NDArray[np.float64] | None = None, **options: Any
+    ) -> KeyframeObservation:
+        """What the pipeline hands loop closure for this keyframe (``options``: the other fields)."""
+        features = KeyframeFeatures(self.keypoints, self.points3d, self.descriptors, responses)
+        return KeyframeObservation(stamp, self.pose, features, **options)
 
 
 @dataclass

@@ -21,9 +21,7 @@ from .loop_scene import CAMERA_MATRIX, Place, make_place, observe, place_pose, r
 def feed(detector: LoopClosureDetector, rng: np.random.Generator, place: Place, pose: np.ndarray, stamp: float):
     obs = observe(rng, place, pose)
     image = rng.integers(0, 256, size=64, dtype=np.uint8).tobytes()
-    return detector.process(
-        stamp, pose, obs.keypoints, obs.points3d, obs.descriptors, rgb_compressed=image, depth_compressed=image[:10]
-    )
+    return detector.process(obs.keyframe(stamp, rgb_compressed=image, depth_compressed=image[:10]))
 
 
 def first_session(rng: np.random.Generator) -> tuple[LoopClosureDetector, list[Place]]:

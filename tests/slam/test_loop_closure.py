@@ -14,7 +14,7 @@ from .loop_scene import CAMERA_MATRIX, Place, make_place, observe, place_pose, r
 
 def feed(detector: LoopClosureDetector, rng: np.random.Generator, place: Place, pose: np.ndarray, stamp: float):
     obs = observe(rng, place, pose)
-    return detector.process(stamp, pose, obs.keypoints, obs.points3d, obs.descriptors)
+    return detector.process(obs.keyframe(stamp))
 
 
 def test_planted_revisit_is_detected_and_new_places_are_not() -> None:

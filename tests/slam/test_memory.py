@@ -17,7 +17,7 @@ from .loop_scene import CAMERA_MATRIX, Place, make_place, observe, place_pose
 
 def add_place(memory: Memory, rng: np.random.Generator, place: Place, stamp: float = 0.0):
     obs = observe(rng, place, place.pose)
-    return memory.add(stamp, obs.pose, obs.keypoints, obs.points3d, obs.descriptors)
+    return memory.add(obs.keyframe(stamp))
 
 
 def filled_memory(n: int, stm_size: int = 2, **kwargs) -> tuple[Memory, list[Place]]:
@@ -64,7 +64,7 @@ def test_tf_idf_likelihood_scores_the_shared_location() -> None:
     rng = np.random.default_rng(22)
     memory, places = filled_memory(8, stm_size=2)
     obs = observe(rng, places[3], places[3].pose)
-    query = memory.add(99.0, obs.pose, obs.keypoints, obs.points3d, obs.descriptors).signature
+    query = memory.add(obs.keyframe(99.0)).signature
     scores = memory.likelihood(query)
     assert max(scores, key=scores.__getitem__) == 4
     assert all(v == 0.0 for k, v in scores.items() if k != 4)
@@ -135,7 +135,7 @@ def run_with_budget(time_threshold_ms: float) -> tuple[list[list[int]], list[int
     for k in range(8):
         place = make_place(rng, place_pose(k))
         obs = observe(rng, place, place.pose)
-        hyp = detector.process(float(k), obs.pose, obs.keypoints, obs.points3d, obs.descriptors)
+        hyp = detector.process(obs.keyframe(float(k)))
         assert hyp.elapsed_ms == pytest.approx(50.0)
         transferred.append(hyp.transferred)
         wm_sizes.append(len(detector.memory.wm))
@@ -175,7 +175,7 @@ def test_word_budget_quantises_the_strongest_keypoints_and_keeps_every_descripto
     for k, place in enumerate(places):
         obs = observe(rng, place, place.pose)
         responses = rng.uniform(0.0, 1.0, len(obs.descriptors))
-        added = memory.add(float(k), obs.pose, obs.keypoints, obs.points3d, obs.descriptors, responses=responses)
+        added = memory.add(obs.keyframe(float(k), responses=responses))
         signature = added.signature
         strongest = np.sort(np.argsort(-responses)[:40])
         assert signature.word_count == 40
@@ -189,4 +189,4 @@ def test_word_budget_quantises_the_strongest_keypoints_and_keeps_every_descripto
     assert len(words) > 0 and idf.min() - 1e-12 <= float(weights.sum()) <= idf.max() + 1e-12
     with pytest.raises(SlamError, match="3 responses for"):
         obs = observe(rng, places[0], places[0].pose)
-        memory.add(9.0, obs.pose, obs.keypoints, obs.points3d, obs.descriptors, responses=[1.0, 2.0, 3.0])
+        memory.add(obs.keyframe(9.0, responses=np.array([1.0, 2.0, 3.0])))

@@ -16,21 +16,33 @@ if TYPE_CHECKING:
     from fleetslam.slam.config import BackendConfig, FeatureConfig, OdometryConfig, SlamConfig
     from fleetslam.slam.database import MapDatabase
     from fleetslam.slam.features import FeatureExtractor, Features
+    from fleetslam.slam.frontend import (
+        FRONT_ENDS,
+        KeyframeFeatures,
+        KeyframeObservation,
+        OdometryFactory,
+        OdometryFrontEnd,
+        OdometryResult,
+        make_odometry,
+    )
     from fleetslam.slam.loop_closure import LoopClosureDetector, LoopHypothesis, make_loop_closure_detector
     from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
     from fleetslam.slam.memory import Memory
     from fleetslam.slam.node import SlamNode, SlamNodeConfig
-    from fleetslam.slam.odometry import OdometryResult, VisualOdometry, make_odometry
+    from fleetslam.slam.odometry import VisualOdometry
     from fleetslam.slam.pipeline import SlamPipeline, SlamResult, StepResult, run_offline
     from fleetslam.slam.signature import Link, LinkType, Signature
     from fleetslam.slam.vocabulary import VisualVocabulary
 
 __all__ = [
+    "FRONT_ENDS",
     "BackendConfig",
     "Constraint",
     "FeatureConfig",
     "FeatureExtractor",
     "Features",
+    "KeyframeFeatures",
+    "KeyframeObservation",
     "Link",
     "LinkType",
     "LoopClosureConfig",
@@ -40,6 +52,8 @@ __all__ = [
     "Memory",
     "MemoryConfig",
     "OdometryConfig",
+    "OdometryFactory",
+    "OdometryFrontEnd",
     "OdometryResult",
     "PoseGraph",
     "Signature",
@@ -65,7 +79,16 @@ if not TYPE_CHECKING:
             "config": ["BackendConfig", "FeatureConfig", "OdometryConfig", "SlamConfig"],
             "loop_config": ["LoopClosureConfig", "MemoryConfig"],
             "pipeline": ["SlamPipeline", "SlamResult", "StepResult", "run_offline"],
-            "odometry": ["OdometryResult", "VisualOdometry", "make_odometry"],
+            "frontend": [
+                "FRONT_ENDS",
+                "KeyframeFeatures",
+                "KeyframeObservation",
+                "OdometryFactory",
+                "OdometryFrontEnd",
+                "OdometryResult",
+                "make_odometry",
+            ],
+            "odometry": ["VisualOdometry"],
             "loop_closure": ["LoopClosureDetector", "LoopHypothesis", "make_loop_closure_detector"],
             "backend": ["Constraint", "PoseGraph", "make_pose_graph"],
             "features": ["FeatureExtractor", "Features"],

@@ -40,7 +40,12 @@ class FeatureConfig(ConfigModel):
 
 
 class OdometryConfig(ConfigModel):
-    """Frame-to-local-map visual odometry (RTAB-Map Odom/Strategy=0, F2M)."""
+    """The odometry front-end; the other fields configure the ``visual`` one, frame-to-local-map visual odometry
+    (RTAB-Map Odom/Strategy=0, F2M)."""
+
+    kind: str = "visual"
+    """Front-end, by its name in the registry (:data:`fleetslam.slam.frontend.FRONT_ENDS`; ``visual`` is the only
+    built-in one). A front-end without features runs with loop closure and relocalisation off."""
 
     min_inliers: int = Field(default=15, ge=4)
     """Below this many PnP inliers tracking is lost (RTAB-Map Vis/MinInliers)."""
@@ -209,7 +214,7 @@ class SlamConfig(ConfigModel):
     """Keypoints and descriptors."""
 
     odometry: OdometryConfig = Field(default_factory=OdometryConfig)
-    """Visual odometry."""
+    """Odometry front-end (``kind``) and the visual odometry's parameters."""
 
     backend: BackendConfig = Field(default_factory=BackendConfig)
     """Pose-graph optimisation."""

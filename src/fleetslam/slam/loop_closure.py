@@ -3,14 +3,15 @@
 The pipeline calls :meth:`LoopClosureDetector.process` once per keyframe::
 
     detector = make_loop_closure_detector(cfg.loop_closure, cfg.memory, camera_matrix, T_base_camera)
-    hyp = detector.process(stamp, T_world_base, keypoints_uv, points_cam, descriptors,
-                           odometry_transform=T_prev_new, odometry_information=info6x6,
-                           rgb_compressed=jpeg_bytes, depth_compressed=png_bytes)
+    hyp = detector.process(KeyframeObservation(stamp, T_world_base,
+                                               KeyframeFeatures(keypoints_uv, points_cam, descriptors),
+                                               odometry_transform=T_prev_new, odometry_information=info6x6,
+                                               rgb_compressed=jpeg_bytes, depth_compressed=png_bytes))
     # hyp.query_id is the new location's id (the pose-graph node id); the odometry link
     # previous -> new is already in detector.memory. If hyp.accepted: add the factor
     # between hyp.match_id and hyp.query_id with hyp.transform (T_match_query) and
     # detector.memory.signatures[hyp.match_id].links[hyp.query_id].information.
-    # At the end of the run:  with MapDatabase(out / "map.db") as db: detector.memory.save(db)
+    # At the end of the run:  with MapDatabase(out / "map.db") as db: detector.save(db)
     # Next session:           with MapDatabase(path) as db: mem = Memory.load(db, new_session=True, ...)
     #                         detector = make_loop_closure_detector(..., existing_memory=mem)
 
@@ -25,8 +26,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -34,12 +36,16 @@ from numpy.typing import ArrayLike, NDArray
 from fleetslam.errors import MissingExtraError, SlamError
 from fleetslam.geometry import invert, make_pose, planar_camera_pose, rotation_angle
 from fleetslam.slam.bayes_filter import VIRTUAL_PLACE, BayesFilter, adjust_likelihood
+from fleetslam.slam.frontend import KeyframeObservation
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.matching import match_mutual
 from fleetslam.slam.memory import Memory
 from fleetslam.slam.pose_refinement import planar_basis, refine_pose
 from fleetslam.slam.signature import Link, LinkType, Signature
 from fleetslam.slam.vocabulary import VisualVocabulary
+
+if TYPE_CHECKING:
+    from fleetslam.slam.database import MapDatabase
 
 logger = logging.getLogger(__name__)
 
@@ -280,35 +286,15 @@ class LoopClosureDetector:
         self.last_likelihood: dict[int, float] = {}
         """Normalised likelihood of the last keyframe."""
 
-    def process(
-        self,
-        stamp: float,
-        pose: ArrayLike,
-        keypoints: ArrayLike,
-        points3d: ArrayLike,
-        descriptors: NDArray[np.generic],
-        *,
-        odometry_transform: ArrayLike | None = None,
-        odometry_information: ArrayLike | None = None,
-        rgb_compressed: bytes | None = None,
-        depth_compressed: bytes | None = None,
-        responses: ArrayLike | None = None,
-    ) -> LoopHypothesis:
-        """Add one keyframe and decide whether it closes a loop (see the module docstring); ``responses`` (the
-        detector's, per keypoint) choose which keypoints become words when the memory limits them."""
+    def process(self, observation: KeyframeObservation) -> LoopHypothesis:
+        """Add one keyframe and decide whether it closes a loop (see the module docstring); the features'
+        ``responses`` choose which keypoints become words when the memory limits them.
+
+        Raises:
+            SlamError: the observation has no features.
+        """
         start = self.clock()
-        added = self.memory.add(
-            stamp,
-            pose,
-            keypoints,
-            points3d,
-            descriptors,
-            odometry_transform=odometry_transform,
-            odometry_information=odometry_information,
-            rgb_compressed=rgb_compressed,
-            depth_compressed=depth_compressed,
-            responses=responses,
-        )
+        added = self.memory.add(observation)
         query = added.signature
         match_id: int | None = None
         value = 0.0
@@ -358,6 +344,50 @@ class LoopClosureDetector:
             transferred=transferred,
             elapsed_ms=elapsed_ms,
         )
+
+    # -- what the pipeline asks of the loop-closure side besides process() ----------------------------------------
+    def set_planar_mounting(self, base_camera: NDArray[np.float64] | None) -> None:
+        """A ground robot's camera mounting (T_base_camera): verification then solves for the base's x, y and yaw
+        only; None: full 6-DoF transforms."""
+        self.verifier.planar_mounting = base_camera
+
+    def locations(self) -> list[int]:
+        """Ids of every location in memory (STM, WM and LTM), newest first."""
+        return sorted(self.memory.signatures, reverse=True)
+
+    def relocalize(
+        self, observation: KeyframeObservation, candidates: Iterable[int]
+    ) -> tuple[int, VerificationResult] | None:
+        """The first of the ``candidates`` (location ids) that the observation passes geometric verification
+        against, with the result (``transform`` is T_location_query); None when none does or it has no features."""
+        features = observation.features
+        if features is None:
+            return None
+        query = Signature(
+            id=-1,
+            stamp=observation.stamp,
+            pose=observation.pose,
+            keypoints=np.asarray(features.keypoints, np.float32),
+            points3d=np.asarray(features.points3d, np.float32),
+            descriptors=np.asarray(features.descriptors),
+        )
+        for location in candidates:
+            verification = self.verifier.verify(query, self.memory.signatures[location])
+            if verification.transform is not None:
+                return location, verification
+        return None
+
+    def memory_sizes(self) -> dict[str, int]:
+        """Locations in the short-term, working and long-term memory (``stm``, ``wm``, ``ltm``)."""
+        return {"stm": len(self.memory.stm), "wm": len(self.memory.wm), "ltm": len(self.memory.ltm)}
+
+    def bag_of_words(self, location_id: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Word ids and TF-IDF weights of a location (see :meth:`Memory.bag_of_words`)."""
+        return self.memory.bag_of_words(location_id)
+
+    def save(self, database: MapDatabase) -> None:
+        """Write the whole memory (locations, links, vocabulary) to ``database``; :meth:`Memory.load` reads it."""
+        self.memory.save(database)
 
 
 def make_loop_closure_detector(

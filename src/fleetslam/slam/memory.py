@@ -39,6 +39,7 @@ from fleetslam.slam.vocabulary import VisualVocabulary
 
 if TYPE_CHECKING:
     from fleetslam.slam.database import MapDatabase
+    from fleetslam.slam.frontend import KeyframeObservation
 
 logger = logging.getLogger(__name__)
 
@@ -129,48 +130,42 @@ class Memory:
         return len(self.signatures)
 
     # ------------------------------------------------------------------ adding
-    def add(
-        self,
-        stamp: float,
-        pose: ArrayLike,
-        keypoints: ArrayLike,
-        points3d: ArrayLike,
-        descriptors: NDArray[np.generic],
-        *,
-        odometry_transform: ArrayLike | None = None,
-        odometry_information: ArrayLike | None = None,
-        rgb_compressed: bytes | None = None,
-        depth_compressed: bytes | None = None,
-        responses: ArrayLike | None = None,
-    ) -> AddResult:
+    def add(self, observation: KeyframeObservation) -> AddResult:
         """Create a location, quantise its descriptors, link it to the previous one, rehearse, update STM/WM.
 
-        ``odometry_transform`` is ``T_previous_new`` (computed from the poses when None). With ``max_words``,
-        only that many keypoints become words: the strongest by detector ``responses`` (the first ones without
-        them); the rest keep their descriptors for verification and carry word id -1.
+        The observation's ``odometry_transform`` is ``T_previous_new`` (computed from the poses when None). With
+        ``max_words``, only that many keypoints become words: the strongest by detector ``responses`` (the first
+        ones without them); the rest keep their descriptors for verification and carry word id -1.
+
+        Raises:
+            SlamError: the observation has no features, or their arrays differ in length.
         """
-        pose_arr = np.asarray(pose, dtype=np.float64)
-        keypoints_arr = np.asarray(keypoints, dtype=np.float32).reshape(-1, 2)
-        points_arr = np.asarray(points3d, dtype=np.float32).reshape(-1, 3)
+        features = observation.features
+        if features is None:
+            raise SlamError("memory: a location needs the keyframe's features (its front-end gives none)")
+        descriptors = features.descriptors
+        pose_arr = np.asarray(observation.pose, dtype=np.float64)
+        keypoints_arr = np.asarray(features.keypoints, dtype=np.float32).reshape(-1, 2)
+        points_arr = np.asarray(features.points3d, dtype=np.float32).reshape(-1, 3)
         if not (len(keypoints_arr) == len(points_arr) == len(descriptors)):
             raise SlamError(
                 f"memory: {len(keypoints_arr)} keypoints, {len(points_arr)} points and {len(descriptors)} "
                 "descriptors must have the same length"
             )
         word_ids = np.full(len(descriptors), -1, np.int64)
-        chosen = self._word_keypoints(len(descriptors), responses)
+        chosen = self._word_keypoints(len(descriptors), features.responses)
         word_ids[chosen] = self.vocabulary.quantize(np.asarray(descriptors)[chosen], add=True)
         signature = Signature(
             id=self._next_id,
-            stamp=float(stamp),
+            stamp=float(observation.stamp),
             pose=pose_arr,
             keypoints=keypoints_arr,
             points3d=points_arr,
             descriptors=np.asarray(descriptors),
             word_ids=word_ids,
             map_id=self.map_id,
-            rgb_compressed=rgb_compressed if self.keep_images else None,
-            depth_compressed=depth_compressed if self.keep_images else None,
+            rgb_compressed=observation.rgb_compressed if self.keep_images else None,
+            depth_compressed=observation.depth_compressed if self.keep_images else None,
         )
         self._next_id += 1
         self.signatures[signature.id] = signature
@@ -182,10 +177,14 @@ class Memory:
         if previous is not None and previous.map_id == signature.map_id:
             transform = (
                 relative(previous.pose, pose_arr)
-                if odometry_transform is None
-                else np.asarray(odometry_transform, dtype=np.float64)
+                if observation.odometry_transform is None
+                else np.asarray(observation.odometry_transform, dtype=np.float64)
             )
-            information = np.eye(6) if odometry_information is None else np.asarray(odometry_information, float)
+            information = (
+                np.eye(6)
+                if observation.odometry_information is None
+                else np.asarray(observation.odometry_information, float)
+            )
             self.add_link(Link(previous.id, signature.id, LinkType.ODOMETRY, transform, information))
             if previous.id in self.stm:
                 similarity = word_set_similarity(signature, previous)

@@ -313,7 +313,7 @@ class SlamNode:
         self.counts["keyframes"] += step.keyframe_id is not None
         self.counts["loop_closures"] += step.loop_closed
         if self.pipeline is not None:
-            self.counts["loops_retracted"] = len(self.pipeline.graph.retracted)
+            self.counts["loops_retracted"] = self.pipeline.loops_retracted
         self.counts["relocalisations"] += step.relocalized
         self.counts["lost_frames"] += bool(odometry.lost)
         self.counts["coasting_frames"] += bool(odometry.coasting)
@@ -373,9 +373,9 @@ class SlamNode:
 
     def bag_of_words(self, keyframe_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Word ids and TF-IDF weights of a keyframe's location (empty without the loop-closure side)."""
-        if self.pipeline is None or self.pipeline.detector is None:
+        if self.pipeline is None:
             return np.zeros(0, np.uint32), np.zeros(0, np.float32)
-        words, weights = self.pipeline.detector.memory.bag_of_words(keyframe_id)
+        words, weights = self.pipeline.bag_of_words(keyframe_id)
         return words.astype(np.uint32), weights.astype(np.float32)
 
     def publish_keyframe(self, stamp_ns: int, step: StepResult, frame: RGBDFrame) -> None:
@@ -418,7 +418,7 @@ class SlamNode:
         self._graph_changed = False
         poses = self.pipeline.keyframe_poses()
         ids = sorted(poses)
-        constraints = self.pipeline.graph.constraints()
+        constraints = self.pipeline.constraints()
         keyframe_poses = pose_msgs([poses[i] for i in ids])
         relative_msgs = pose_msgs([c.transform for c in constraints])
         constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
@@ -453,14 +453,8 @@ class SlamNode:
             path = save_path(self.config.maps_dir, name, suffixes=(".db",))
         except (UnsafePathError, OSError) as err:
             return response(success=False, message=str(err), path=name)
-        if self.pipeline is None or self.pipeline.detector is None:
+        if self.pipeline is None or not self.pipeline.save_map(path):
             return response(success=False, message="nothing to save yet (no camera frames)", path=str(path))
-        from fleetslam.slam.database import MapDatabase
-
-        if path.exists():
-            path.unlink()
-        with MapDatabase(path) as db:
-            self.pipeline.detector.memory.save(db)
         return response(success=True, message=f"{len(self.pipeline.keyframe_stamps)} keyframes", path=str(path))
 
     def on_reset(self, request: Any) -> Any:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,7 @@ from fleetslam.datasets.base import Intrinsics
 from fleetslam.geometry import invert, orthonormalized, planar_camera_pose, rotation_angle
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
+from fleetslam.slam.frontend import OdometryResult
 from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
 from fleetslam.slam.photometric_alignment import (
@@ -47,34 +48,6 @@ from fleetslam.slam.surface_alignment import KeyframeSurface, SurfaceTerm, depth
 from fleetslam.slam.triangulation import match_and_triangulate
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass
-class OdometryResult:
-    """Outcome of :meth:`VisualOdometry.track`."""
-
-    pose: NDArray[np.float64]
-    """``T_world_camera`` in the odometry frame."""
-    inliers: int
-    """Landmarks the pose was estimated from (0 when lost or coasting)."""
-    matches: int
-    """Descriptor matches against the local map."""
-    is_keyframe: bool
-    lost: bool
-    """Visual tracking failed and no wheel odometry carried the pose (it follows constant velocity)."""
-    timings: dict[str, float] = field(default_factory=dict)
-    """Milliseconds per step (features, match, pose, keyframe, total)."""
-    keypoints: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 2), np.float32))
-    """Keypoints with valid depth (for the loop-closure side on keyframes)."""
-    points3d: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 3), np.float32))
-    """Their 3D points in the camera frame."""
-    descriptors: NDArray[Any] = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
-    responses: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
-    """Their detector responses (strength)."""
-    coasting: bool = False
-    """Visual tracking failed and the pose follows the wheel odometry; the map is kept."""
-    map_restarted: bool = False
-    """The local map was started afresh at this frame (first frame, or after losing it)."""
 
 
 def backproject(
@@ -206,7 +179,11 @@ def wheel_motion_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[f
 
 
 class VisualOdometry:
-    """RGB-D frame-to-local-map odometry. ``track`` is called once per frame, in order."""
+    """RGB-D frame-to-local-map odometry (the ``visual`` :class:`~fleetslam.slam.frontend.OdometryFrontEnd`).
+    ``track`` is called once per frame, in order."""
+
+    provides_features = True
+    """Keyframes carry ORB (or SIFT, AKAZE) features for loop closure."""
 
     def __init__(
         self,
@@ -887,13 +864,3 @@ def _chi2(
     dv = (k[1, 1] * p[:, 1] / z + k[1, 2] - pixels[:, 1]) / pixel_std
     dz = np.where(depths > 0, (p[:, 2] - depths) / (depth_noise * depths**2 + 1e-3), 0.0)
     return np.where(p[:, 2] > 1e-6, du**2 + dv**2 + dz**2, np.inf)
-
-
-def make_odometry(
-    config: OdometryConfig,
-    features: FeatureConfig,
-    intrinsics: Intrinsics,
-    base_camera: NDArray[np.float64] | None = None,
-) -> VisualOdometry:
-    """Build the odometry from configuration."""
-    return VisualOdometry(config, intrinsics, features, base_camera)

@@ -11,10 +11,10 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,10 +22,21 @@ from numpy.typing import NDArray
 from fleetslam.config import dump_config
 from fleetslam.datasets.base import RGBDFrame, RGBDSource
 from fleetslam.geometry import invert
-from fleetslam.slam.backend import PoseGraph, information_from_std, make_pose_graph
+from fleetslam.slam.backend import Constraint, PoseGraph, information_from_std, make_pose_graph
 from fleetslam.slam.config import SlamConfig
-from fleetslam.slam.odometry import OdometryResult, VisualOdometry, make_odometry, wheel_motion_std
+from fleetslam.slam.frontend import (
+    FRONT_ENDS,
+    KeyframeObservation,
+    OdometryFactory,
+    OdometryFrontEnd,
+    OdometryResult,
+    make_odometry,
+)
+from fleetslam.slam.odometry import wheel_motion_std
 from fleetslam.trajectory import Trajectory, write_tum
+
+if TYPE_CHECKING:
+    from fleetslam.slam.loop_closure import LoopClosureDetector
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +78,7 @@ class StepResult:
 
     pose: NDArray[np.float64]
     """Camera pose T_map_camera after the graph's latest optimisation."""
-    odometry: Any
+    odometry: OdometryResult
     """The odometry result (pose in the odometry frame, features of keyframes)."""
     keyframe_id: int | None
     """Graph node id when this frame became a keyframe."""
@@ -87,9 +98,11 @@ class SlamPipeline:
         *,
         intrinsics: Any = None,
         base_camera: NDArray[np.float64] | None = None,
+        front_ends: Mapping[str, OdometryFactory] = FRONT_ENDS,
     ) -> None:
         """``source`` for offline runs; a live node passes only the camera ``intrinsics`` and calls :meth:`step`.
-        ``base_camera`` (T_base_camera; default: the source's, if it knows it) enables planar motion."""
+        ``base_camera`` (T_base_camera; default: the source's, if it knows it) enables planar motion.
+        ``front_ends``: the registry ``config.odometry.kind`` is looked up in (a new front-end is added there)."""
         if source is None and intrinsics is None:
             raise ValueError("SlamPipeline needs a source or the camera intrinsics")
         self.config = config
@@ -97,19 +110,23 @@ class SlamPipeline:
         self.intrinsics = intrinsics if intrinsics is not None else source.intrinsics  # type: ignore[union-attr]
         if base_camera is None and source is not None:
             base_camera = getattr(source, "base_camera", None)
-        self.odometry: VisualOdometry = make_odometry(config.odometry, config.features, self.intrinsics, base_camera)
+        self.odometry: OdometryFrontEnd = make_odometry(
+            config.odometry, config.features, self.intrinsics, base_camera, front_ends=front_ends
+        )
         self.graph: PoseGraph = make_pose_graph(config.backend)
         b = config.backend
         self.odometry_information = information_from_std(
             b.odometry_translation_std, np.radians(b.odometry_rotation_std_deg)
         )
         self.loop_information = information_from_std(b.loop_translation_std, np.radians(b.loop_rotation_std_deg))
-        self.detector: Any = None
+        self._detector: LoopClosureDetector | None = None
         self._next_id = 1
-        if config.loop_closure_enabled:
+        if config.loop_closure_enabled and not self.odometry.provides_features:
+            logger.info("odometry.kind = %r gives no features: loop closure is off", config.odometry.kind)
+        elif config.loop_closure_enabled:
             from fleetslam.slam.loop_closure import make_loop_closure_detector
 
-            self.detector = make_loop_closure_detector(config.loop_closure, config.memory, self.intrinsics.K)
+            self._detector = make_loop_closure_detector(config.loop_closure, config.memory, self.intrinsics.K)
         self._stamps: list[float] = []
         self._odom_poses: list[NDArray[np.float64]] = []
         self._frame_keyframe: list[int] = []
@@ -126,9 +143,43 @@ class SlamPipeline:
         """The camera's mounting on a ground robot (T_base_camera): with ``odometry.planar_motion`` the odometry,
         loop closures and relocalisation then solve for the base's x, y and yaw only."""
         self.odometry.base_camera = base_camera
-        if self.detector is not None:
+        if self._detector is not None:
             planar = self.config.odometry.planar_motion and base_camera is not None
-            self.detector.verifier.planar_mounting = base_camera if planar else None
+            self._detector.set_planar_mounting(base_camera if planar else None)
+
+    @property
+    def loop_closure(self) -> bool:
+        """Loop closure runs (configured on, and the front-end gives features)."""
+        return self._detector is not None
+
+    def save_map(self, path: str | Path) -> bool:
+        """Write the loop-closure memory (locations, links, vocabulary) to ``path`` (a map.db, replaced if it
+        exists; ``Memory.load`` reads it); False without loop closure."""
+        if self._detector is None:
+            return False
+        from fleetslam.slam.database import MapDatabase
+
+        path = Path(path)
+        if path.exists():
+            path.unlink()
+        with MapDatabase(path) as db:
+            self._detector.save(db)
+        return True
+
+    def bag_of_words(self, keyframe_id: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Visual word ids and TF-IDF weights of a keyframe's location (empty without loop closure)."""
+        if self._detector is None:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        return self._detector.bag_of_words(keyframe_id)
+
+    def constraints(self) -> list[Constraint]:
+        """Every odometry and loop constraint of the pose graph."""
+        return self.graph.constraints()
+
+    @property
+    def loops_retracted(self) -> int:
+        """Loop closures the back-end took back after optimisation (their error was too large)."""
+        return len(self.graph.retracted)
 
     def step(self, frame: RGBDFrame) -> StepResult:
         """Process one frame: track it, and on a keyframe add it to the graph and look for a loop."""
@@ -141,7 +192,7 @@ class SlamPipeline:
         result = self.odometry.track(frame.rgb, frame.depth, frame.stamp, frame.prior)
         t_odom, cpu_odom = (time.perf_counter() - t0) * 1e3, (time.thread_time() - cpu0) * 1e3
         relocalized = None
-        if result.lost and self.detector is not None and self.config.relocalization_candidates > 0:
+        if result.lost and self._detector is not None and self.config.relocalization_candidates > 0:
             relocalized = self._relocalize(frame.stamp, result)
         record: dict[str, Any] = {
             "index": frame.index,
@@ -194,30 +245,24 @@ class SlamPipeline:
             relocalized=tracked.relocalized is not None,
         )
 
-    def _relocalize(self, stamp: float, result: Any) -> int | None:
+    def _relocalize(self, stamp: float, result: OdometryResult) -> int | None:
         """Verify a lost frame against the most recent locations in memory (PnP, as a loop closure) and,
         on success, put the odometry back on the map there. Returns the location relocalised on, or None."""
-        from fleetslam.slam.signature import Signature
-
+        assert self._detector is not None
         if len(result.points3d) < self.config.loop_closure.min_inliers:
             return None
-        memory = self.detector.memory
-        query = Signature(
-            id=-1,
-            stamp=stamp,
-            pose=result.pose,
-            keypoints=result.keypoints,
-            points3d=result.points3d,
-            descriptors=result.descriptors,
+        candidates = [i for i in self._detector.locations() if i in self.keyframe_odometry]
+        found = self._detector.relocalize(
+            KeyframeObservation(stamp, result.pose, result.features()),
+            candidates[: self.config.relocalization_candidates],
         )
-        candidates = [i for i in sorted(memory.signatures, reverse=True) if i in self.keyframe_odometry]
-        for location in candidates[: self.config.relocalization_candidates]:
-            verification = self.detector.verifier.verify(query, memory.signatures[location])
-            if verification.transform is not None:
-                self.odometry.relocalize(result, self.keyframe_odometry[location] @ verification.transform)
-                logger.info("relocalised on location %d (%d inliers)", location, verification.inliers)
-                return location
-        return None
+        if found is None:
+            return None
+        location, verification = found
+        assert verification.transform is not None
+        self.odometry.relocalize(result, self.keyframe_odometry[location] @ verification.transform)
+        logger.info("relocalised on location %d (%d inliers)", location, verification.inliers)
+        return location
 
     def keyframe_poses(self) -> dict[int, NDArray[np.float64]]:
         """Current (optimised) pose of every keyframe."""
@@ -262,7 +307,7 @@ class SlamPipeline:
     def _add_keyframe(
         self,
         stamp: float,
-        result: Any,
+        result: OdometryResult,
         last_kf: int | None,
         kf_odom: dict[int, NDArray[np.float64]],
         accepted: list[tuple[int, int]],
@@ -271,20 +316,17 @@ class SlamPipeline:
     ) -> int:
         odometry_transform = None if last_kf is None else invert(kf_odom[last_kf]) @ result.pose
         hypothesis = None
-        if self.detector is not None:
-            hypothesis = self.detector.process(
-                stamp,
-                result.pose,
-                result.keypoints,
-                result.points3d,
-                result.descriptors,
-                odometry_transform=odometry_transform,
-                odometry_information=self.odometry_information,
-                responses=result.responses,
-            )
+        observation = KeyframeObservation(
+            stamp,
+            result.pose,
+            result.features() if self.odometry.provides_features else None,
+            odometry_transform=odometry_transform,
+            odometry_information=self.odometry_information,
+        )
+        if self._detector is not None and observation.features is not None:
+            hypothesis = self._detector.process(observation)
             node = int(hypothesis.query_id)
-            mem = self.detector.memory
-            record["memory"] = {"stm": len(mem.stm), "wm": len(mem.wm), "ltm": len(mem.ltm)}
+            record["memory"] = self._detector.memory_sizes()
             record["hypothesis"] = {
                 "match": hypothesis.match_id,
                 "probability": round(float(hypothesis.probability), 4),
@@ -338,12 +380,14 @@ def run_offline(
     *,
     max_frames: int | None = None,
     show_progress: bool = True,
+    front_ends: Mapping[str, OdometryFactory] = FRONT_ENDS,
 ) -> SlamResult:
-    """Run the pipeline over a source and write trajectory.txt, keyframes.txt, map.db, config.yaml, stats.json."""
+    """Run the pipeline over a source and write trajectory.txt, keyframes.txt, odometry.txt, map.db (with loop
+    closure), config.yaml and stats.json; ``front_ends`` as :class:`SlamPipeline`'s."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.yaml").write_text(dump_config(config), encoding="utf-8")
-    pipeline = SlamPipeline(config, source)
+    pipeline = SlamPipeline(config, source, front_ends=front_ends)
     total = len(source) if max_frames is None else min(len(source), max_frames)
     bar: Any = None
     if show_progress:
@@ -361,14 +405,7 @@ def run_offline(
     write_tum(out / "trajectory.txt", result.trajectory)
     write_tum(out / "keyframes.txt", result.keyframes)
     write_tum(out / "odometry.txt", result.odometry)
-    if pipeline.detector is not None:
-        from fleetslam.slam.database import MapDatabase
-
-        db_path = out / "map.db"
-        if db_path.exists():
-            db_path.unlink()
-        with MapDatabase(db_path) as db:
-            pipeline.detector.memory.save(db)
+    pipeline.save_map(out / "map.db")
     ms = np.asarray(result.frame_ms) if result.frame_ms else np.zeros(1)
     summary = {
         "dataset": source.name,
