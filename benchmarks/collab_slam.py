@@ -39,7 +39,6 @@ from fleetslam.fusion.alignment import rigid_fit
 from fleetslam.fusion.collaboration import InterAgentLinker
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields
-from fleetslam.fusion.place_recognition import make_peer_recognizer
 from fleetslam.geometry import invert, pose_to_quat, rotation_angle
 from fleetslam.msg.typesys import message_from_dict, serialize
 from fleetslam.slam.config import SlamConfig
@@ -161,17 +160,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 agent.keyframe_stamps[step.keyframe_id] = frame.stamp
                 agent.summary_sizes.append(summary_bytes(summary))
                 other.linker.queue_summary(summary)
-                constraints = [(int(c.a), int(c.b)) for c in agent.pipeline.graph.constraints()]
+                constraints = [(int(c.a), int(c.b)) for c in agent.pipeline.constraints()]
                 update = agent.writer.update(poses, agent.keyframe_stamps, constraints)
                 if update is not None:
                     agent.delta_sizes.append(delta_bytes(agent.name, update))
                     other.linker.apply_graph(agent.name, update)  # type: ignore[arg-type]
-            if agent.linker.queue and agent.pipeline.detector is not None:
+            if agent.linker.queue and agent.pipeline.loop_closure:
                 if agent.recognizer is None:
-                    agent.recognizer = make_peer_recognizer(
-                        agent.pipeline.config.loop_closure, agent.pipeline.detector.memory,
-                        agent.pipeline.intrinsics.K,
-                    )  # fmt: skip
+                    agent.recognizer = agent.pipeline.peer_recognizer()
                 own_poses = agent.pipeline.keyframe_poses()
                 start = time.thread_time()
                 agent.linker.step(agent.recognizer, own_poses)

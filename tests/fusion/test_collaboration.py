@@ -8,13 +8,14 @@ import numpy as np
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker
 from fleetslam.fusion.keyframe_summary import summarize
-from fleetslam.fusion.place_recognition import make_peer_recognizer
 from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle
+from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
 from fleetslam.slam.loop_closure import make_loop_closure_detector
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
+from fleetslam.slam.peer_recognition import make_peer_recognizer
 
+from ..slam.test_peer_recognition import camera_pose, features_of
 from ..slam.textured_room import make_textures
-from .test_place_recognition import camera_pose, features_of
 
 CAMERA = Intrinsics(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
 #: The peer's map frame in this agent's (what the agents must find).
@@ -29,7 +30,8 @@ def test_a_peer_map_frame_is_found_from_closures_at_several_places() -> None:
     for index, (x, y, yaw) in enumerate(PLACES):
         pose = camera_pose(x, y, yaw)
         keypoints, points, descriptors = features_of(pose, CAMERA, textures)
-        own_poses[detector.process(float(index), pose, keypoints, points, descriptors).query_id] = pose
+        observation = KeyframeObservation(float(index), pose, KeyframeFeatures(keypoints, points, descriptors))
+        own_poses[detector.process(observation).query_id] = pose
     recognizer = make_peer_recognizer(LoopClosureConfig(), detector.memory, CAMERA.K)
     linker = InterAgentLinker("c3po", CollaborationConfig(budget_ms=60_000.0))
 

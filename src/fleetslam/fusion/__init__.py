@@ -1,6 +1,5 @@
-"""Multi-agent fusion: what agents exchange (keyframe summaries, graph deltas), inter-agent place recognition and
-the consistency of inter-agent closures, alignment of the agents' map frames, and the fleet's global occupancy map,
-plus the fleet map node.
+"""Multi-agent fusion: what agents exchange (keyframe summaries, graph deltas), the consistency of inter-agent
+closures, alignment of the agents' map frames, and the fleet's global occupancy map, plus the fleet map node.
 
 Names are loaded on first use; numba (the ``mapping`` extra) only when the fleet map is.
 """
@@ -19,7 +18,6 @@ if TYPE_CHECKING:
     from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphMirror, GraphUpdate
     from fleetslam.fusion.keyframe_summary import KeyframeSummary, summarize
     from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
-    from fleetslam.fusion.place_recognition import PeerPlaceRecognizer, make_peer_recognizer
 
 __all__ = [
     "ClosureSet",
@@ -34,9 +32,7 @@ __all__ = [
     "InterAgentLinker",
     "KeyframeSummary",
     "PairClosure",
-    "PeerPlaceRecognizer",
     "estimate_agent_transform",
-    "make_peer_recognizer",
     "rigid_fit",
     "summarize",
 ]
@@ -51,7 +47,6 @@ if not TYPE_CHECKING:
             "consistency": ["ClosureSet", "PairClosure"],
             "graph_exchange": ["GraphDeltaWriter", "GraphMirror", "GraphUpdate"],
             "keyframe_summary": ["KeyframeSummary", "summarize"],
-            "place_recognition": ["PeerPlaceRecognizer", "make_peer_recognizer"],
             "fleet_map": ["FleetMap"],
             "node": ["FleetMapConfig", "FleetMapNode"],
         },

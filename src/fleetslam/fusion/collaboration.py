@@ -31,8 +31,8 @@ from fleetslam.config import ConfigModel
 from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure
 from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
 from fleetslam.fusion.keyframe_summary import KeyframeSummary
-from fleetslam.fusion.place_recognition import PeerMatch, PeerPlaceRecognizer
 from fleetslam.geometry import invert
+from fleetslam.slam.peer_recognition import PeerMatch, PeerPlaceRecognizer
 
 Pose = NDArray[np.float64]
 

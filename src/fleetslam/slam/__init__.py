@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from fleetslam.slam.memory import Memory
     from fleetslam.slam.node import SlamNode, SlamNodeConfig
     from fleetslam.slam.odometry import VisualOdometry
+    from fleetslam.slam.peer_recognition import PeerMatch, PeerPlaceRecognizer, make_peer_recognizer
     from fleetslam.slam.pipeline import SlamPipeline, SlamResult, StepResult, run_offline
     from fleetslam.slam.signature import Link, LinkType, Signature
     from fleetslam.slam.vocabulary import VisualVocabulary
@@ -55,6 +56,8 @@ __all__ = [
     "OdometryFactory",
     "OdometryFrontEnd",
     "OdometryResult",
+    "PeerMatch",
+    "PeerPlaceRecognizer",
     "PoseGraph",
     "Signature",
     "SlamConfig",
@@ -67,6 +70,7 @@ __all__ = [
     "VisualVocabulary",
     "make_loop_closure_detector",
     "make_odometry",
+    "make_peer_recognizer",
     "make_pose_graph",
     "run_offline",
 ]
@@ -86,9 +90,13 @@ if not TYPE_CHECKING:
                 "OdometryFactory",
                 "OdometryFrontEnd",
                 "OdometryResult",
+                "PeerMatch",
+                "PeerPlaceRecognizer",
                 "make_odometry",
+                "make_peer_recognizer",
             ],
             "odometry": ["VisualOdometry"],
+            "peer_recognition": ["PeerMatch", "PeerPlaceRecognizer", "make_peer_recognizer"],
             "loop_closure": ["LoopClosureDetector", "LoopHypothesis", "make_loop_closure_detector"],
             "backend": ["Constraint", "PoseGraph", "make_pose_graph"],
             "features": ["FeatureExtractor", "Features"],

@@ -37,6 +37,7 @@ from fleetslam.trajectory import Trajectory, write_tum
 
 if TYPE_CHECKING:
     from fleetslam.slam.loop_closure import LoopClosureDetector
+    from fleetslam.slam.peer_recognition import PeerPlaceRecognizer
 
 logger = logging.getLogger(__name__)
 
@@ -171,6 +172,17 @@ class SlamPipeline:
         if self._detector is None:
             return np.zeros(0, np.int64), np.zeros(0, np.float64)
         return self._detector.bag_of_words(keyframe_id)
+
+    def peer_recognizer(self, *, max_verifications: int = 2) -> PeerPlaceRecognizer | None:
+        """A recognizer of other agents' keyframes in this pipeline's memory, verifying as its own loop closure does
+        (None without loop closure). Call it, and use it, from the thread that steps the pipeline."""
+        if self._detector is None:
+            return None
+        from fleetslam.slam.peer_recognition import make_peer_recognizer
+
+        return make_peer_recognizer(
+            self.config.loop_closure, self._detector.memory, self.intrinsics.K, max_verifications=max_verifications
+        )
 
     def constraints(self) -> list[Constraint]:
         """Every odometry and loop constraint of the pose graph."""

@@ -7,14 +7,15 @@ import numpy as np
 
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.fusion.keyframe_summary import summarize
-from fleetslam.fusion.place_recognition import PeerPlaceRecognizer, make_peer_recognizer
 from fleetslam.geometry import invert, make_pose, rotation_angle
 from fleetslam.slam.features import FeatureExtractor
+from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
 from fleetslam.slam.loop_closure import GeometricVerifier, make_loop_closure_detector
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.odometry import backproject
+from fleetslam.slam.peer_recognition import PeerPlaceRecognizer, make_peer_recognizer
 
-from ..slam.textured_room import make_textures, render
+from .textured_room import make_textures, render
 
 OWN = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 PEER = Intrinsics(fx=300.0, fy=300.0, cx=161.0, cy=118.0, width=320, height=240)
@@ -41,7 +42,9 @@ def own_memory(textures: list[np.ndarray], poses: list[np.ndarray]):
     ids = []
     for index, pose in enumerate(poses):
         keypoints, points, descriptors = features_of(pose, OWN, textures)
-        hypothesis = detector.process(float(index), pose, keypoints, points, descriptors)
+        hypothesis = detector.process(
+            KeyframeObservation(float(index), pose, KeyframeFeatures(keypoints, points, descriptors))
+        )
         ids.append(hypothesis.query_id)
     return detector.memory, ids
 

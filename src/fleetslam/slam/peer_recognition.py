@@ -1,4 +1,4 @@
-"""Recognising a peer's keyframe in this agent's own memory, and verifying it geometrically.
+"""Inter-agent loop closure: a peer agent's keyframe recognised in this agent's own memory, and verified geometrically.
 
 A peer's :class:`~fleetslam.fusion.keyframe_summary.KeyframeSummary` is quantised with this agent's own
 vocabulary (without adding words: a peer's view must not grow our dictionary) and scored by TF-IDF against the
