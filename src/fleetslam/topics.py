@@ -28,11 +28,14 @@ __all__ = [
     "DEPTH_IMAGE",
     "FLEET_MAP_OCCUPIED",
     "FLEET_MAP_OCTOMAP",
+    "FLEET_POSE",
     "FLEET_TOPICS",
     "GRAPH",
+    "GRAPH_UPDATES",
     "GROUND_TRUTH_ODOM",
     "JOINT_STATES",
     "KEYFRAMES",
+    "KEYFRAME_SUMMARIES",
     "LIVEFRAMES",
     "MAP_GRID",
     "MAP_MARKERS",
@@ -110,10 +113,19 @@ SLAM_ODOM = Topic("slam/odom", "nav_msgs/msg/Odometry", 5, content="camera in ma
 PATH = Topic("path", "nav_msgs/msg/Path", 1, content="keyframe poses", flow="slam → station")
 LIVEFRAMES = Topic("liveframes", "fleetslam_msgs/msg/Keyframe", 5, content="no images, every frame",
                    flow="slam → viewers")  # fmt: skip
-KEYFRAMES = Topic("keyframes", "fleetslam_msgs/msg/Keyframe", 50, flow="slam → mapping, other agents")
+KEYFRAMES = Topic("keyframes", "fleetslam_msgs/msg/Keyframe", 50, content="with images", flow="slam → mapping")
 GRAPH = Topic("graph", "fleetslam_msgs/msg/KeyframeGraph", 1, "transient_local",
-              content="poses + constraints only; after loop closures, else at most 1 Hz",
-              flow="slam → mapping, other agents, station")  # fmt: skip
+              content="the whole graph, poses + constraints only; after loop closures, else at most 1 Hz",
+              flow="slam → mapping, station")  # fmt: skip
+GRAPH_UPDATES = Topic("graph_updates", "fleetslam_msgs/msg/KeyframeGraph", 50,
+                      content="deltas: new keyframes, moved poses, new constraints, numbered; the whole graph on "
+                      "request (`graph/full`)", flow="slam → other agents")  # fmt: skip
+KEYFRAME_SUMMARIES = Topic("keyframe_summaries", "fleetslam_msgs/msg/KeyframeSummary", 50,
+                           content="every keyframe's features, quantised, no images (~15 kB)",
+                           flow="slam → other agents")  # fmt: skip
+FLEET_POSE = Topic("slam/fleet_pose", "geometry_msgs/msg/PoseStamped", 5,
+                   content="camera in the fleet frame, every frame once the agent is placed in it",
+                   flow="slam → station, other agents")  # fmt: skip
 SLAM_DIAGNOSTICS = Topic(
     "slam/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
     content="frames received/processed/dropped, relocalisations, loop closures, timings; every processed frame",
@@ -125,7 +137,7 @@ MAP_MARKERS = Topic("map/markers", "visualization_msgs/msg/MarkerArray", 1, "tra
                     flow="mapping → viewers")  # fmt: skip
 MAP_GRID = Topic("map/grid", "nav_msgs/msg/OccupancyGrid", 1, "transient_local", flow="mapping → viewers")
 MAP_OCTOMAP = Topic("map/octomap", "octomap_msgs/msg/Octomap", 1, "transient_local", flow="mapping → fleet map")
-TF = Topic("tf", "tf2_msgs/msg/TFMessage", 10, content="odom → base_link, map → odom",
+TF = Topic("tf", "tf2_msgs/msg/TFMessage", 10, content="odom → base_link, map → odom, fleet → <agent>/map",
            flow="base controller, slam → anyone")  # fmt: skip
 
 # -- fleet-level topics ------------------------------------------------------------------------------------
@@ -139,8 +151,8 @@ CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", 1, content="sim time, when si
 
 AGENT_TOPICS: tuple[Topic, ...] = (
     CMD_VEL, CMD_VEL_STAMPED, ODOM, JOINT_STATES, RGB_IMAGE, DEPTH_IMAGE, CAMERA_INFO, DEPTH_CAMERA_INFO, TF_STATIC,
-    GROUND_TRUTH_ODOM, SLAM_ODOM, PATH, LIVEFRAMES, KEYFRAMES, GRAPH, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS,
-    MAP_GRID, MAP_OCTOMAP, TF,
+    GROUND_TRUTH_ODOM, SLAM_ODOM, FLEET_POSE, PATH, LIVEFRAMES, KEYFRAMES, KEYFRAME_SUMMARIES, GRAPH, GRAPH_UPDATES,
+    SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
 )  # fmt: skip
 """The topics of one agent, in its namespace."""
 FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, CLOCK)

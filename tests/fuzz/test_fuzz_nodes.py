@@ -82,7 +82,7 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     robot = Node("base", context=make_context("c3po"))
     BaseControllerNode(robot, MotorWheels(), config=RobotConfig())
     slam = Node("slam", context=make_context("c3po"))
-    slam_node = SlamNode(slam, SlamNodeConfig(use_wheel_odometry=False, maps_dir=str(tmp_path)))
+    slam_node = SlamNode(slam, SlamNodeConfig(use_wheel_odometry=False, maps_dir=str(tmp_path), peers=["r2d2"]))
     mapping = Node("mapping", context=make_context("c3po"))
     mapping_node = MappingNode(mapping, MappingNodeConfig(publish_rate=5.0, maps_dir=str(tmp_path)))
     fleet = Node("fleet_map", context=make_context())
@@ -121,7 +121,8 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     fuzzed = targets([robot, slam, mapping, fleet, station.node])
     topics = {t.topic for t in fuzzed}
     assert {"/c3po/cmd_vel", "/c3po/camera/rgb/image_raw", "/c3po/camera/depth/image_raw", "/c3po/keyframes",
-            "/c3po/graph", "/c3po/map/octomap", "/statistics", "/c3po/path", "/c3po/ground_truth/odom"} <= topics, (
+            "/c3po/graph", "/c3po/map/octomap", "/statistics", "/c3po/path", "/c3po/ground_truth/odom",
+            "/r2d2/keyframe_summaries", "/r2d2/graph_updates", "/r2d2/tf"} <= topics, (
         topics)  # fmt: skip
     attacker = plain_session(router_endpoint)
     try:

@@ -18,6 +18,7 @@ any peer whose place in the fleet frame is known gets ``T_fleet_ownmap = T_fleet
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -88,6 +89,8 @@ class InterAgentLinker:
         self.clock = clock
         self.peers: dict[str, PeerState] = {}
         self.queue: deque[KeyframeSummary] = deque()
+        self._queue_lock = threading.Lock()
+        """Summaries are queued by the middleware's thread and taken by the one that owns the memory."""
         self.dropped = 0
         """Peer keyframes that left the queue unprocessed (flood or a busy agent)."""
 
@@ -112,10 +115,11 @@ class InterAgentLinker:
         """A peer keyframe to recognise when there is time (this agent's own summaries are ignored)."""
         if summary.agent == self.agent:
             return
-        self.queue.append(summary)
-        while len(self.queue) > self.config.max_queued:
-            self.queue.popleft()
-            self.dropped += 1
+        with self._queue_lock:
+            self.queue.append(summary)
+            while len(self.queue) > self.config.max_queued:
+                self.queue.popleft()
+                self.dropped += 1
 
     def apply_graph(self, agent: str, update: GraphUpdate[object]) -> bool:
         """Apply a peer's graph update; False when the peer's full graph should be requested."""
@@ -126,8 +130,11 @@ class InterAgentLinker:
         verified (each also added to its peer's closures, whose decision is updated)."""
         start = self.clock()
         matches: list[PeerMatch] = []
-        while self.queue and (self.clock() - start) * 1000.0 < self.config.budget_ms:
-            summary = self.queue.popleft()
+        while (self.clock() - start) * 1000.0 < self.config.budget_ms:
+            with self._queue_lock:
+                if not self.queue:
+                    break
+                summary = self.queue.popleft()
             state = self.peer(summary.agent)
             state.recognised += 1
             result = recognizer.recognize(summary)

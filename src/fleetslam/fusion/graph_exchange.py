@@ -16,11 +16,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam.errors import MessageError
 from fleetslam.geometry import invert, rotation_angle
 
 Pose = NDArray[np.float64]
@@ -56,6 +57,11 @@ class GraphDeltaWriter(Generic[ConstraintT]):
     sequence: int = 0
     _sent_poses: dict[int, Pose] = field(default_factory=dict)
     _sent_constraints: int = 0
+
+    @property
+    def sent_keyframes(self) -> int:
+        """Keyframes the updates sent so far hold."""
+        return len(self._sent_poses)
 
     def update(
         self, poses: Mapping[int, Pose], stamps: Mapping[int, float], constraints: Sequence[ConstraintT]
@@ -166,3 +172,33 @@ class GraphMirror(Generic[ConstraintT]):
             else:
                 self.synced = False
                 return
+
+
+MAX_GRAPH_KEYFRAMES = 1_000_000
+"""A received graph with more keyframes (or constraints) than this is refused."""
+
+
+def graph_update_from_message(msg: Any, poses: Sequence[Pose], stamps: Sequence[float]) -> GraphUpdate[Any]:
+    """A :class:`GraphUpdate` from a received ``fleetslam_msgs/KeyframeGraph`` whose poses and stamps the caller
+    converted (``poses[k]``, ``stamps[k]`` of ``msg.keyframe_ids[k]``); its constraints are kept as they came.
+    A malformed one raises :class:`MessageError` naming the field."""
+    where = f"KeyframeGraph from {str(msg.agent)!r} (sequence {int(msg.sequence)})"
+    ids = [int(i) for i in msg.keyframe_ids]
+    if len(ids) > MAX_GRAPH_KEYFRAMES or len(msg.constraints) > MAX_GRAPH_KEYFRAMES:
+        raise MessageError(f"{where}: {len(ids)} keyframes, {len(msg.constraints)} constraints: too many")
+    if len(poses) != len(ids) or len(stamps) != len(ids):
+        raise MessageError(f"{where}: {len(ids)} keyframe ids with {len(poses)} poses and {len(stamps)} stamps")
+    if len(set(ids)) != len(ids):
+        raise MessageError(f"{where}: a keyframe id appears twice")
+    for i, pose in zip(ids, poses, strict=True):
+        if not np.isfinite(pose).all():
+            raise MessageError(f"{where}: the pose of keyframe {i} is not finite")
+    if int(msg.sequence) < 1:
+        raise MessageError(f"{where}: sequence must be >= 1")
+    return GraphUpdate(
+        int(msg.sequence),
+        bool(msg.full),
+        {i: np.asarray(p, dtype=np.float64) for i, p in zip(ids, poses, strict=True)},
+        {i: float(t) for i, t in zip(ids, stamps, strict=True)},
+        list(msg.constraints),
+    )

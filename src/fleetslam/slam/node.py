@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
@@ -35,7 +35,10 @@ from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
-from fleetslam.errors import UnsafePathError
+from fleetslam.errors import MessageError, UnsafePathError
+from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker
+from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_from_message
+from fleetslam.fusion.keyframe_summary import summarize, summary_fields, summary_from_message
 from fleetslam.geometry import invert
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import (
@@ -96,8 +99,27 @@ class SlamNodeConfig(ConfigModel):
     odom_tolerance: float = Field(default=0.1, gt=0.0)
     """How far (s) a camera stamp may lie outside the buffered wheel poses and still get a prior."""
     peers: list[str] = Field(default_factory=list)
-    """Other agents whose `graph` and `keyframes` this agent subscribes to (the distributed framework's
-    cross-agent subscription; kept in ``peer_graphs`` / ``peer_keyframes`` for fusion and inter-agent loops)."""
+    """Other agents this agent maps with (the distributed framework's cross-agent subscription): their
+    ``keyframe_summaries`` are recognised in this agent's memory, their ``graph_updates`` mirrored, and their
+    ``fleet → <peer>/map`` read from their ``tf``, so that this agent places itself in the fleet frame."""
+    collaboration: CollaborationConfig = Field(default_factory=CollaborationConfig)
+    """Inter-agent place recognition and alignment with the peers."""
+    fleet_reference: str = ""
+    """The agent whose map frame is the fleet frame; empty: the alphabetically first of this agent and its peers."""
+    fleet_frame: str = "fleet"
+    """Parent frame of the published ``fleet → <agent>/map`` transform and of ``slam/fleet_pose``."""
+
+
+def _graph_update(msg: Any) -> GraphUpdate[Any]:
+    """A received ``KeyframeGraph`` as a :class:`GraphUpdate` (raises MessageError when it is malformed)."""
+    poses = []
+    for pose in msg.poses:
+        matrix = _valid_pose(partial(pose_matrix, pose))
+        if matrix is None:
+            raise MessageError(f"KeyframeGraph from {str(msg.agent)!r}: a pose is not finite or not a rotation")
+        poses.append(matrix)
+    stamps = [ns_from_stamp(stamp) / 1e9 for stamp in msg.stamps]
+    return graph_update_from_message(msg, poses, stamps)
 
 
 def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
@@ -122,7 +144,9 @@ class SlamNode:
         """Frames processed."""
         self.queue = FrameQueue(self.config.max_pending)
         self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
-                       "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0}  # fmt: skip
+                       "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0,
+                       "peer_keyframes": 0, "peer_closures": 0, "bad_peer_messages": 0,
+                       "graph_requests": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
         self._wheel_wait_ms: list[float] = []
@@ -150,6 +174,9 @@ class SlamNode:
         self.live_pub = publisher(topics.LIVEFRAMES)
         self.keyframe_pub = publisher(topics.KEYFRAMES)
         self.graph_pub = publisher(topics.GRAPH)
+        self.graph_updates_pub = publisher(topics.GRAPH_UPDATES)
+        self.summary_pub = publisher(topics.KEYFRAME_SUMMARIES)
+        self.fleet_pose_pub = publisher(topics.FLEET_POSE)
         self.diagnostics_pub = publisher(topics.SLAM_DIAGNOSTICS)
         # The frame queue drops stale frames itself (and counts them); the subscriptions only bridge a busy moment.
         pending = self.config.max_pending
@@ -163,11 +190,27 @@ class SlamNode:
             # it needs as priors for the frames it is still working through.
             subscribe(topics.ODOM, self.on_odom, 500)
             subscribe(topics.TF_STATIC, self.on_tf_static, 1)
-        self.peer_graphs: dict[str, Any] = {}
-        self.peer_keyframes: dict[str, int] = {}
+        self.graph_writer: GraphDeltaWriter[Any] = GraphDeltaWriter()
+        """What this agent's ``graph_updates`` have sent."""
+        self.linker = InterAgentLinker(self.agent, self.config.collaboration)
+        self._recognizer: Any = None
+        """The pipeline's peer recognizer (made on the first peer keyframe, again after a reset)."""
+        self.peers_in_fleet: dict[str, np.ndarray] = {}
+        """``T_fleet_peermap`` of the peers that published theirs."""
+        self.fleet_transform: np.ndarray | None = None
+        """``T_fleet_map`` of this agent, once placed."""
+        self._fleet_published = (0.0, np.zeros((4, 4)))
+        self._graph_clients: dict[str, Any] = {}
+        self._graph_requests: set[str] = set()
         for peer in self.config.peers:
-            subscribe(topics.GRAPH, self.on_peer_graph, 1, topics.GRAPH.of(peer))
-            subscribe(topics.KEYFRAMES, self.on_peer_keyframe, 50, topics.KEYFRAMES.of(peer))
+            if peer == self.agent:
+                continue
+            subscribe(topics.KEYFRAME_SUMMARIES, partial(self.on_peer_summary, peer), 50,
+                      topics.KEYFRAME_SUMMARIES.of(peer))  # fmt: skip
+            subscribe(topics.GRAPH_UPDATES, partial(self.on_peer_graph_update, peer), 50, topics.GRAPH_UPDATES.of(peer))
+            subscribe(topics.TF, partial(self.on_peer_tf, peer), 10, topics.TF.of(peer))
+            self._graph_clients[peer] = node.create_client("fleetslam_msgs/srv/GetGraph", f"/{peer}/graph/full")
+        node.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", self.on_full_graph)
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
@@ -240,11 +283,70 @@ class SlamNode:
     def on_depth(self, msg: Any) -> None:
         self.queue.put_depth(ns_from_stamp(msg.header.stamp), msg)
 
-    def on_peer_graph(self, msg: Any) -> None:
-        self.peer_graphs[msg.agent] = msg
+    def _bad_peer_message(self, peer: str, what: str, err: Exception | str) -> None:
+        self.counts["bad_peer_messages"] += 1
+        n = self.counts["bad_peer_messages"]
+        if n in (1, 10, 100) or n % 1000 == 0:
+            log.warning("%s: %s from %s ignored (%d so far): %s", self.agent, what, peer, n, err)
 
-    def on_peer_keyframe(self, msg: Any) -> None:
-        self.peer_keyframes[msg.agent] = self.peer_keyframes.get(msg.agent, 0) + 1
+    def on_peer_summary(self, peer: str, msg: Any) -> None:
+        """A peer's keyframe: queued for recognition in this agent's memory (the worker does it between frames)."""
+        if str(msg.agent) != peer:
+            self._bad_peer_message(peer, "keyframe summary", f"it names agent {str(msg.agent)!r}")
+            return
+        pose = _valid_pose(lambda: pose_matrix(msg.pose))
+        try:
+            if pose is None:
+                raise MessageError("pose is not finite or not a rotation")
+            summary = summary_from_message(msg, pose, ns_from_stamp(msg.header.stamp))
+        except (MessageError, ValueError, TypeError) as err:
+            self._bad_peer_message(peer, "keyframe summary", err)
+            return
+        self.linker.queue_summary(summary)
+
+    def on_peer_graph_update(self, peer: str, msg: Any) -> None:
+        """A peer's graph update, applied to its mirror; a gap asks the peer for its whole graph."""
+        if str(msg.agent) != peer:
+            self._bad_peer_message(peer, "graph update", f"it names agent {str(msg.agent)!r}")
+            return
+        try:
+            update = _graph_update(msg)
+        except (MessageError, ValueError, TypeError) as err:
+            self._bad_peer_message(peer, "graph update", err)
+            return
+        if not self.linker.apply_graph(peer, update):
+            self._request_graph(peer)
+
+    def _request_graph(self, peer: str) -> None:
+        """Ask ``peer`` for its whole graph, off the middleware's thread (one request per peer at a time)."""
+        if peer in self._graph_requests or peer not in self._graph_clients:
+            return
+        self._graph_requests.add(peer)
+        self.counts["graph_requests"] += 1
+
+        def ask() -> None:
+            try:
+                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
+                response = self._graph_clients[peer].call(request, timeout=5.0)
+                if str(response.graph.agent) == peer:
+                    self.linker.apply_graph(peer, _graph_update(response.graph))
+            except Exception as err:  # a peer gone or a malformed answer: the next gap asks again
+                log.info("%s: %s's graph could not be fetched: %s", self.agent, peer, err)
+            finally:
+                self._graph_requests.discard(peer)
+
+        threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{peer}", daemon=True).start()
+
+    def on_peer_tf(self, peer: str, msg: Any) -> None:
+        """A peer's ``fleet → <peer>/map``, once it is placed in the fleet frame."""
+        for transform in msg.transforms:
+            if (transform.header.frame_id == self.config.fleet_frame
+                    and transform.child_frame_id == f"{peer}/{self.config.map_frame}"):  # fmt: skip
+                pose = _valid_pose(partial(transform_matrix, transform.transform))
+                if pose is None:
+                    self._bad_peer_message(peer, "fleet transform", "not finite or not a rotation")
+                else:
+                    self.peers_in_fleet[peer] = pose
 
     # -- work ---------------------------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -304,9 +406,44 @@ class SlamNode:
             self._graph_changed = True
         if self._graph_changed:
             self.publish_graph(stamp_ns, optimized=step.loop_closed)
+        self.collaborate(stamp_ns, step)
         self._count(step)
         self.publish_diagnostics(stamp_ns, step, step_ms, (time.monotonic() - pair.completed) * 1e3)
         return step
+
+    def collaborate(self, stamp_ns: int, step: StepResult) -> None:
+        """Recognise queued peer keyframes within the budget, and publish this agent's place in the fleet frame
+        once its closures with a placed peer agree (the reference agent's map frame is the fleet frame)."""
+        if self.pipeline is None:
+            return
+        if self.linker.queue and self.pipeline.loop_closure:
+            if self._recognizer is None:
+                self._recognizer = self.pipeline.peer_recognizer(
+                    max_verifications=self.config.collaboration.max_verifications
+                )
+            before = sum(state.recognised for state in self.linker.peers.values())
+            matches = self.linker.step(self._recognizer, self.pipeline.keyframe_poses())
+            self.counts["peer_keyframes"] += sum(state.recognised for state in self.linker.peers.values()) - before
+            self.counts["peer_closures"] += len(matches)
+        if not self.config.peers and not self.config.fleet_reference:
+            return  # alone: no fleet to be placed in
+        reference = self.config.fleet_reference or min([self.agent, *self.config.peers])
+        transform = self.linker.fleet_transform(reference, self.peers_in_fleet)
+        if transform is None:
+            return
+        if self.fleet_transform is None:
+            log.info("%s: placed in the fleet frame (reference %s)", self.agent, reference)
+        self.fleet_transform = transform
+        fleet_pose = get_type("geometry_msgs/msg/PoseStamped")(
+            header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(transform @ step.pose)
+        )
+        self.fleet_pose_pub.publish(fleet_pose)
+        now = time.monotonic()
+        last, sent = self._fleet_published
+        if now - last >= 1.0 or not np.allclose(sent, transform, atol=1e-4):
+            self._fleet_published = (now, transform)
+            child = f"{self.agent}/{self.config.map_frame}"
+            self.tf_pub.publish(transform_msg(transform, self.config.fleet_frame, child, stamp_ns))
 
     def _count(self, step: StepResult) -> None:
         odometry = step.odometry
@@ -404,11 +541,21 @@ class SlamNode:
             word_ids=word_ids, word_weights=word_weights,
         )  # fmt: skip
         self.keyframe_pub.publish(msg)
+        if self.pipeline is not None and self.camera_info is not None and binary:
+            summary = summarize(
+                self.agent, keyframe_id, stamp_ns, pose, self.pipeline.intrinsics, result.keypoints, result.points3d,
+                descriptors, max_features=self.config.collaboration.summary_features,
+            )  # fmt: skip
+            fields = summary_fields(summary)
+            summary_msg = message_from_dict("fleetslam_msgs/msg/KeyframeSummary", fields)
+            summary_msg.header, summary_msg.pose = msg.header, msg.pose
+            self.summary_pub.publish(summary_msg)
 
     def publish_graph(self, stamp_ns: int, *, optimized: bool) -> None:
-        """The whole keyframe graph on ``graph`` and the keyframe path on ``path``: after a loop closure (every pose
-        moved), else at most every ``graph_period`` (new keyframes reach their readers on ``keyframes`` at once;
-        a graph of hundreds of keyframes is not worth resending three times a second)."""
+        """The whole keyframe graph on ``graph``, what changed on ``graph_updates`` and the keyframe path on
+        ``path``: after a loop closure (every pose moved), else at most every ``graph_period`` (new keyframes reach
+        their readers on ``keyframes`` at once; a graph of hundreds of keyframes is not worth resending three times
+        a second)."""
         if self.pipeline is None:
             return
         now = time.monotonic()
@@ -417,15 +564,40 @@ class SlamNode:
         self._graph_published = now
         self._graph_changed = False
         poses = self.pipeline.keyframe_poses()
-        ids = sorted(poses)
+        stamps = self.pipeline.keyframe_stamps
         constraints = self.pipeline.constraints()
-        keyframe_poses = pose_msgs([poses[i] for i in ids])
-        relative_msgs = pose_msgs([c.transform for c in constraints])
+        update = self.graph_writer.update(poses, stamps, constraints)
+        graph = self._graph_message(
+            stamp_ns, poses, stamps, constraints, sequence=self.graph_writer.sequence, full=True, optimized=optimized
+        )
+        self.graph_pub.publish(graph)
+        if update is not None:
+            self.graph_updates_pub.publish(
+                self._graph_message(
+                    stamp_ns,
+                    update.poses,
+                    update.stamps,
+                    update.constraints,
+                    sequence=update.sequence,
+                    full=update.full,
+                    optimized=optimized,
+                )
+            )
+        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
+        stamped = [pose_stamped(header=graph.header, pose=p) for p in graph.poses]
+        self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=graph.header, poses=stamped))
+
+    def _graph_message(
+        self, stamp_ns: int, poses: Mapping[int, np.ndarray], stamps: Mapping[int, float], constraints: Sequence[Any],
+        *, sequence: int, full: bool, optimized: bool,
+    ) -> Any:  # fmt: skip
+        """A ``KeyframeGraph`` of these keyframes and constraints (all of them, or a delta)."""
+        ids = sorted(poses)
         constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
-        stamp = header(self.config.map_frame, stamp_ns)
-        graph = get_type("fleetslam_msgs/msg/KeyframeGraph")(
-            header=stamp, agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32), poses=keyframe_poses,
-            stamps=[stamp_from_ns(round(self.pipeline.keyframe_stamps[i] * 1e9)) for i in ids],
+        relative_msgs = pose_msgs([c.transform for c in constraints])
+        return get_type("fleetslam_msgs/msg/KeyframeGraph")(
+            header=header(self.config.map_frame, stamp_ns), agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32),
+            poses=pose_msgs([poses[i] for i in ids]), stamps=[stamp_from_ns(round(stamps[i] * 1e9)) for i in ids],
             constraints=[
                 constraint_type(
                     from_id=int(c.a), to_id=int(c.b), from_agent=self.agent, to_agent=self.agent,
@@ -434,12 +606,22 @@ class SlamNode:
                 )
                 for c, relative in zip(constraints, relative_msgs, strict=True)
             ],
-            optimized=optimized,
+            optimized=optimized, sequence=sequence, full=full,
         )  # fmt: skip
-        self.graph_pub.publish(graph)
-        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
-        stamped = [pose_stamped(header=stamp, pose=p) for p in keyframe_poses]
-        self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=stamp, poses=stamped))
+
+    def on_full_graph(self, request: Any) -> Any:
+        """``graph/full``: the whole graph as of the last ``graph_updates`` message (for a peer that missed one)."""
+        response = get_type("fleetslam_msgs/srv/GetGraph_Response")
+        with self._lock:
+            if self.pipeline is None:
+                full: GraphUpdate[Any] = GraphUpdate(max(self.graph_writer.sequence, 1), True, {}, {}, [])
+            else:
+                full = self.graph_writer.full(
+                    self.pipeline.keyframe_poses(), self.pipeline.keyframe_stamps, self.pipeline.constraints()
+                )
+            graph = self._graph_message(self.node.now_ns(), full.poses, full.stamps, full.constraints,
+                                        sequence=max(full.sequence, 1), full=True, optimized=False)  # fmt: skip
+        return response(graph=graph)
 
     # -- services -----------------------------------------------------------------------------------------------
     def on_save_map(self, request: Any) -> Any:

@@ -1,0 +1,106 @@
+"""Two SLAM nodes over a real router, no start poses: each recognises the other's keyframes (sent as summaries),
+the graphs travel as deltas, and the second agent places its map frame in the fleet frame (the first one's)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from fleetslam.datasets.base import Intrinsics, RGBDFrame
+from fleetslam.drivers.node import CameraNode
+from fleetslam.geometry import invert, pose_from_planar, rotation_angle
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.msg.conversions import pose_matrix, transform_matrix
+from fleetslam.msg.typesys import ns_from_stamp
+from fleetslam.slam.config import SlamConfig
+from fleetslam.slam.node import SlamNode, SlamNodeConfig
+from fleetslam.slam.pipeline import SlamPipeline
+
+from ..drivers.test_node import BASE_CAMERA, FrameListCamera
+from ..slam.textured_room import make_textures, render
+from ..support import wait_until
+
+INTRINSICS = Intrinsics(262.5, 262.5, 159.5, 119.5, 320, 240)
+
+
+def drive(x0: float, x1: float, y: float, count: int) -> list[np.ndarray]:
+    """Camera poses of a robot driving along x (its camera looking along +x at the room's far wall)."""
+    return [pose_from_planar(x0 + (x1 - x0) * k / (count - 1), y, 0.0) @ BASE_CAMERA for k in range(count)]
+
+
+def test_two_agents_find_each_other_and_the_second_is_placed_in_the_fleet_frame(
+    make_context: Callable[..., Context],
+) -> None:
+    textures = make_textures(np.random.default_rng(5))
+    truth = {"c3po": drive(-1.6, 0.8, 0.0, 25), "r2d2": drive(0.9, -1.5, 0.25, 25)}
+    frames = {
+        agent: [RGBDFrame(k, 3000.0 + 0.2 * k, *render(pose, INTRINSICS, textures)) for k, pose in enumerate(poses)]
+        for agent, poses in truth.items()
+    }
+    warm = SlamPipeline(SlamConfig(), intrinsics=INTRINSICS)  # compile the kernels before the nodes run
+    for frame in frames["c3po"][:3]:
+        warm.step(frame)
+
+    config = {agent: SlamNodeConfig(peers=[peer]) for agent, peer in (("c3po", "r2d2"), ("r2d2", "c3po"))}
+    slam = {agent: SlamNode(Node("slam", context=make_context(agent)), config[agent]) for agent in truth}
+    poses: dict[str, dict[int, np.ndarray]] = {agent: {} for agent in truth}
+    fleet_tf: list[Any] = []
+    fleet_poses: list[Any] = []
+    summary_bytes: list[int] = []
+    with Node("listener", context=make_context()) as listener:
+        for agent in truth:
+            listener.create_subscription(
+                "nav_msgs/msg/Odometry", f"/{agent}/slam/odom",
+                lambda msg, a=agent: poses[a].__setitem__(ns_from_stamp(msg.header.stamp), pose_matrix(msg.pose.pose)),
+            )  # fmt: skip
+        listener.create_subscription("tf2_msgs/msg/TFMessage", "/r2d2/tf", fleet_tf.append, QoSProfile(depth=50))
+        listener.create_subscription("geometry_msgs/msg/PoseStamped", "/r2d2/slam/fleet_pose", fleet_poses.append)
+        listener.create_subscription(
+            "fleetslam_msgs/msg/KeyframeSummary", "/c3po/keyframe_summaries",
+            lambda data: summary_bytes.append(len(data)), QoSProfile(depth=50), raw=True,
+        )  # fmt: skip
+        cameras = {}
+        for agent in truth:
+            driver = FrameListCamera(
+                INTRINSICS, frames[agent], rate=5.0, ready=lambda i, a=agent: len(poses[a]) >= i - 1
+            )
+            node = Node("camera", context=make_context(), namespace=f"/{agent}")
+            cameras[agent] = (CameraNode(node, driver, base_camera=BASE_CAMERA), driver)
+        assert wait_until(lambda: all(s.base_camera is not None for s in slam.values()), 10.0)
+        for camera, driver in cameras.values():
+            camera.start()
+            driver.go.set()
+        for camera, _ in cameras.values():
+            assert camera.join(60.0)
+        assert wait_until(lambda: slam["r2d2"].fleet_transform is not None, 20.0), (
+            slam["r2d2"].counts, {p: s.decision for p, s in slam["r2d2"].linker.peers.items()},
+        )  # fmt: skip
+        assert wait_until(lambda: fleet_poses and any(
+            t.header.frame_id == "fleet" and t.child_frame_id == "r2d2/map" for m in fleet_tf for t in m.transforms
+        ), 10.0)  # fmt: skip
+        for camera, _ in cameras.values():
+            camera.close()
+
+    # The truth: each agent's map frame in the world, from its own first pose.
+    def world_from_map(agent: str) -> np.ndarray:
+        stamp_index = {round(f.stamp * 1e9): f.index for f in frames[agent]}
+        stamp = min(poses[agent])
+        return truth[agent][stamp_index[stamp]] @ invert(poses[agent][stamp])
+
+    expected = invert(world_from_map("c3po")) @ world_from_map("r2d2")
+    (published,) = [t for m in fleet_tf for t in m.transforms if t.child_frame_id == "r2d2/map"][-1:]
+    for estimate in (slam["r2d2"].fleet_transform, transform_matrix(published.transform)):
+        error = invert(expected) @ estimate
+        assert np.linalg.norm(error[:3, 3]) < 0.05, error[:3, 3]
+        assert np.degrees(rotation_angle(error)) < 1.0
+    assert fleet_poses[-1].header.frame_id == "fleet"
+    # Summaries, not images, on the wire; the peers' graphs mirrored from deltas.
+    assert summary_bytes and max(summary_bytes) <= 20_000
+    mirror = slam["c3po"].linker.peers["r2d2"].mirror
+    writer = slam["r2d2"].graph_writer
+    assert mirror.synced and mirror.sequence == writer.sequence and len(mirror.poses) == writer.sent_keyframes
+    assert writer.sent_keyframes >= slam["r2d2"].counts["keyframes"] - 1  # the newest may wait for graph_period
+    assert slam["c3po"].counts["bad_peer_messages"] == slam["r2d2"].counts["bad_peer_messages"] == 0
+    assert slam["r2d2"].counts["peer_closures"] >= 3
