@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -9,9 +10,11 @@ from typing import Any
 import numpy as np
 
 from fleetslam.fusion.node import FleetMapConfig, FleetMapNode
+from fleetslam.geometry import pose_from_xyz_rpy
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.msg.conversions import transform_msg
 from fleetslam.msg.typesys import get_type, message_from_dict
 
 from ..support import wait_until
@@ -27,7 +30,8 @@ def _agent_map() -> Any:
 
 def test_fleet_node_fuses_agents_in_the_fleet_frame(make_context: Callable[..., Context]) -> None:
     fleet = Node("fleet_map", context=make_context())
-    config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]}, publish_rate=5.0)
+    config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]}, publish_rate=5.0,
+                            require_placement=False)  # fmt: skip
     FleetMapNode(fleet, config)
     clouds: list[Any] = []
     fleet.create_subscription("sensor_msgs/msg/PointCloud2", "/fleet/map/occupied", clouds.append, QoSProfile(depth=5))
@@ -51,7 +55,8 @@ def test_fleet_node_fuses_without_subscribers_and_serves_late_ones(
 ) -> None:
     fleet_node = Node("fleet_map", context=make_context())
     config = FleetMapConfig(resolution=0.1, start_poses={"r2d2": [10.0, 0.0, 0.0, 0.0, 0.0, np.pi]},
-                            agents=["c3po", "r2d2"], publish_rate=5.0, maps_dir=str(tmp_path))  # fmt: skip
+                            agents=["c3po", "r2d2"], publish_rate=5.0, maps_dir=str(tmp_path),
+                            require_placement=False)  # fmt: skip
     fleet = FleetMapNode(fleet_node, config)
     latched = QoSProfile(durability="transient_local", depth=1)
     for agent in ("c3po", "r2d2"):
@@ -72,3 +77,31 @@ def test_fleet_node_fuses_without_subscribers_and_serves_late_ones(
     viewer.create_subscription("octomap_msgs/msg/Octomap", "/fleet/map/octomap", octomaps.append, latched)
     assert wait_until(lambda: bool(octomaps), 10.0)
     assert octomaps[-1].header.frame_id == "fleet" and len(octomaps[-1].data) > 0
+
+
+def test_agents_without_start_poses_wait_for_the_placement_their_slam_publishes(
+    make_context: Callable[..., Context],
+) -> None:
+    fleet_node = Node("fleet_map", context=make_context())
+    fleet = FleetMapNode(fleet_node, FleetMapConfig(resolution=0.1, agents=["c3po", "r2d2"], publish_rate=5.0))
+    latched = QoSProfile(durability="transient_local", depth=1)
+    tf = {}
+    for agent in ("c3po", "r2d2"):
+        node = Node("mapping", context=make_context(agent))
+        node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched).publish(_agent_map())
+        tf[agent] = node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=10))
+    assert wait_until(lambda: len(fleet._latest) == 2, 10.0)
+    time.sleep(0.5)
+    assert fleet.fleet.agents() == []  # neither is placed: nothing lands at the origin
+    # The reference agent's SLAM places itself at the fleet origin; r2d2's once its closures agree.
+    assert wait_until(lambda: all(p.matched_subscriptions for p in tf.values()), 10.0)
+    tf["c3po"].publish(transform_msg(np.eye(4), "fleet", "c3po/map", 0))
+    tf["c3po"].publish(transform_msg(np.eye(4), "fleet", "r2d2/map", 0))  # c3po cannot place r2d2: ignored
+    assert wait_until(lambda: fleet.fleet.agents() == ["c3po"], 10.0)
+    r2d2_in_fleet = pose_from_xyz_rpy(10.0, 0.0, 0.0, 0.0, 0.0, np.pi)
+    tf["r2d2"].publish(transform_msg(r2d2_in_fleet, "fleet", "r2d2/map", 0))
+    assert wait_until(lambda: fleet.fleet.agents() == ["c3po", "r2d2"], 10.0)
+    fleet.fuse_pending()
+    fused = fleet.fleet.fused()
+    assert fused.is_occupied([2.05, 0.05, 0.55]) and fused.is_occupied([7.95, 0.05, 0.55])
+    np.testing.assert_allclose(fleet.placed["r2d2"], r2d2_in_fleet, atol=1e-9)

@@ -86,7 +86,12 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     mapping = Node("mapping", context=make_context("c3po"))
     mapping_node = MappingNode(mapping, MappingNodeConfig(publish_rate=5.0, maps_dir=str(tmp_path)))
     fleet = Node("fleet_map", context=make_context())
-    FleetMapNode(fleet, FleetMapConfig(resolution=0.1, agents=["c3po"], publish_rate=5.0, maps_dir=str(tmp_path)))
+    FleetMapNode(
+        fleet,
+        FleetMapConfig(
+            resolution=0.1, agents=["c3po"], publish_rate=5.0, maps_dir=str(tmp_path), require_placement=False
+        ),
+    )
     observer = Node("observer", context=make_context())
     counts = {"odom": 0, "slam": 0, "cloud": 0, "console": 0}
 

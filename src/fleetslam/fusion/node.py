@@ -1,8 +1,11 @@
 """The fleet map node: every agent's `map/octomap` in, the fused map in the fleet frame out.
 
 Agents are found in the graph (any `/<agent>/map/octomap` publisher) or listed in the parameters. An agent's map
-frame is placed in the fleet frame by its known start pose (``start_poses``); agents without one are placed at the
-fleet origin until inter-agent alignment gives a transform. At ``publish_rate`` it takes each agent's latest map
+frame is placed in the fleet frame by its known start pose (``start_poses``, optional), else by the transform the
+agent's SLAM publishes on its ``tf`` once its closures with the fleet agree (``fleet`` → ``<agent>/map``, see
+:mod:`fleetslam.fusion.collaboration`); an agent placed by neither stays out of the fused map (with
+``require_placement``) rather than land at the origin on top of the others. At ``publish_rate`` it takes each
+agent's latest map
 (the maps that came in between are skipped), fuses what changed into the fleet map, and publishes
 ``/fleet/map/occupied`` (PointCloud2) and ``/fleet/map/octomap`` if the fleet map changed — each only while someone
 subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
@@ -21,11 +24,11 @@ from fleetslam import topics
 from fleetslam.config import ConfigModel
 from fleetslam.errors import UnsafePathError
 from fleetslam.fusion.fleet_map import FleetMap
-from fleetslam.geometry import pose_from_xyz_rpy
+from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle
 from fleetslam.mapping.node import PublishPacer
 from fleetslam.mapping.octomap_io import leaves_from_octomap_message, octomap_message_fields
 from fleetslam.middleware import Node
-from fleetslam.msg.conversions import pointcloud2_msg
+from fleetslam.msg.conversions import pointcloud2_msg, transform_matrix
 from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict
 from fleetslam.save_paths import save_path
 
@@ -38,7 +41,14 @@ class FleetMapConfig(ConfigModel):
     resolution: float = Field(default=0.05, gt=0)
     """Resolution of the agents' maps and of the fused map (m)."""
     start_poses: dict[str, list[float]] = Field(default_factory=dict)
-    """Per agent, its map frame in the fleet frame as [x, y, z, roll, pitch, yaw] (m, rad)."""
+    """Per agent, its map frame in the fleet frame as [x, y, z, roll, pitch, yaw] (m, rad), when known; agents not
+    listed are placed by the transform their SLAM publishes once aligned with the fleet."""
+    require_placement: bool = True
+    """Leave an agent out of the fused map until it has a start pose or has published its place in the fleet frame
+    (False: fuse it at the fleet origin meanwhile)."""
+    placement_tolerance: float = Field(default=0.01, gt=0)
+    """A published placement that moved less than this (m, and a tenth of it in radians) is not applied again
+    (applying one re-lands the agent's whole map)."""
     agents: list[str] = Field(default_factory=list)
     """Agents to fuse; empty: every agent publishing `map/octomap`."""
     publish_rate: float = Field(default=0.5, gt=0)
@@ -62,10 +72,15 @@ class FleetMapNode:
         self.node = node
         self.config = config or FleetMapConfig()
         self.fleet = FleetMap(self.config.resolution)
+        self.placed: dict[str, np.ndarray] = {}
+        """Each placed agent's ``T_fleet_map``."""
         for agent, pose in self.config.start_poses.items():
-            self.fleet.set_transform(agent, pose_from_xyz_rpy(*pose))
+            self.placed[agent] = pose_from_xyz_rpy(*pose)
+            self.fleet.set_transform(agent, self.placed[agent])
         self._subscribed: set[str] = set()
         self._latest: dict[str, bytes] = {}
+        self._pending_placement: dict[str, np.ndarray] = {}
+        """Per agent, the newest published placement not applied yet (applied at the next tick)."""
         """Per agent, the latest map message (CDR) not fused yet."""
         self._version = 0
         self._published = {"occupied": 0, "octomap": 0}
@@ -87,6 +102,24 @@ class FleetMapNode:
         self.node.create_subscription(
             octomap.type, octomap.of(agent), partial(self.on_agent_map, agent), octomap.qos(depth=1), raw=True
         )
+        if agent not in self.config.start_poses:
+            self.node.create_subscription(
+                topics.TF.type, topics.TF.of(agent), partial(self.on_agent_tf, agent), topics.TF.qos(depth=10)
+            )
+
+    def on_agent_tf(self, agent: str, msg: Any) -> None:
+        """An agent's ``fleet → <agent>/map``: its map frame placed in the fleet frame by its SLAM."""
+        for transform in msg.transforms:
+            if transform.header.frame_id != self.config.frame_id or transform.child_frame_id != f"{agent}/map":
+                continue
+            try:
+                pose = transform_matrix(transform.transform)
+            except ValueError:
+                pose = np.full((4, 4), np.nan)
+            if not np.isfinite(pose).all():
+                log.warning("%s: fleet transform is not finite; ignored", agent)
+                continue
+            self._pending_placement[agent] = pose
 
     def _discover(self) -> None:
         if self.config.agents:
@@ -100,9 +133,29 @@ class FleetMapNode:
         """Keep an agent's latest map; it is decoded and fused at the next tick."""
         self._latest[agent] = data
 
+    def _apply_placements(self) -> None:
+        pending, self._pending_placement = self._pending_placement, {}
+        tolerance = self.config.placement_tolerance
+        for agent, pose in sorted(pending.items()):
+            known = self.placed.get(agent)
+            if known is not None:
+                moved = invert(known) @ pose
+                if np.linalg.norm(moved[:3, 3]) < tolerance and rotation_angle(moved) < tolerance / 10:
+                    continue
+            if known is None:
+                log.info("%s: placed in the fleet frame by its SLAM", agent)
+            self.placed[agent] = pose
+            self.fleet.set_transform(agent, pose)
+            self._version += 1
+
     def fuse_pending(self) -> None:
-        """Fuse the agents' latest maps into the fleet map (only what changed in them)."""
+        """Apply new placements, then fuse the agents' latest maps into the fleet map (only what changed in them);
+        the map of an agent not placed yet waits (with ``require_placement``)."""
+        self._apply_placements()
         pending, self._latest = self._latest, {}
+        if self.config.require_placement:
+            for agent in [a for a in pending if a not in self.placed]:
+                self._latest[agent] = pending.pop(agent)
         template = self.fleet.fused()
         for agent, data in sorted(pending.items()):
             msg = deserialize(data, "octomap_msgs/msg/Octomap")
