@@ -162,3 +162,21 @@ def test_taken_listen_endpoint_is_a_clear_error(router_endpoint: str) -> None:
     taken = router_endpoint  # the router listens there
     with pytest.raises(MiddlewareError, match=f"cannot open a Zenoh session .*listen \\['{taken}'\\].*in use"):
         Context(router=router_endpoint, listen=taken, environ={})
+
+
+def test_the_context_knows_closables_not_nodes() -> None:
+    """No import cycle: context.py imports nothing of the node modules, not even for typing, and no module reaches
+    into the context's private members."""
+    import ast
+
+    import fleetslam.middleware
+    import fleetslam.middleware.context as context_module
+
+    tree = ast.parse(Path(context_module.__file__).read_text())
+    imported = {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    node_modules = ("node", "publisher", "subscription", "service", "client", "timer", "entity", "executor")
+    assert not {m for m in imported if m.rsplit(".", 1)[-1] in node_modules}
+    for path in Path(fleetslam.middleware.__file__).parent.glob("*.py"):
+        if path.name != "context.py":
+            assert "context._" not in path.read_text(), path.name
