@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from fleetslam.errors import MessageError, ServiceError
-from fleetslam.middleware import typesys
 from fleetslam.middleware.entity import Entity
 from fleetslam.middleware.wire import EntityKind, QoSProfile, decode_attachment, encode_attachment, topic_key
+from fleetslam.msg import typesys
 
 if TYPE_CHECKING:
     from fleetslam.middleware.node import Node

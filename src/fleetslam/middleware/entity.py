@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from fleetslam.middleware import typesys
 from fleetslam.middleware.wire import EntityKind, LivelinessToken, QoSProfile
+from fleetslam.msg import typesys
 
 if TYPE_CHECKING:
     from fleetslam.middleware.node import Node

@@ -38,7 +38,6 @@ from typing import Any
 
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MiddlewareError
-from fleetslam.middleware import typesys
 from fleetslam.middleware.client import Client
 from fleetslam.middleware.context import Context
 from fleetslam.middleware.entity import Entity
@@ -57,6 +56,7 @@ from fleetslam.middleware.service import Service
 from fleetslam.middleware.subscription import DEFAULT_MAX_PAYLOAD_BYTES, MessageInfo, Subscription
 from fleetslam.middleware.timer import Timer
 from fleetslam.middleware.wire import EntityKind, LivelinessToken, QoSProfile
+from fleetslam.msg import typesys
 
 __all__ = [
     "CLOCK_TYPE",

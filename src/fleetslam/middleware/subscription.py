@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import zenoh
 
 from fleetslam.errors import MessageError
-from fleetslam.middleware import typesys
 from fleetslam.middleware.context import MAX_MESSAGE_BYTES
 from fleetslam.middleware.entity import Entity
 from fleetslam.middleware.lifetime import declare_with_callback
@@ -29,6 +28,7 @@ from fleetslam.middleware.wire import (
     topic_key,
     topic_key_any_type,
 )
+from fleetslam.msg import typesys
 
 if TYPE_CHECKING:
     from fleetslam.middleware.node import Node
