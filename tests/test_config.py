@@ -57,3 +57,24 @@ def test_dump_documents_every_field_and_loads_back() -> None:
     assert "# How often to publish, in hertz." in text
     assert "# Proportional gain." in text
     assert yaml.safe_load(text) == Sample().model_dump()
+
+
+def test_every_config_section_dumps_its_defaults_as_yaml_that_loads_back() -> None:
+    """`fleetslam config dump`: each section under its name, and what it prints is the defaults, key for key."""
+    from fleetslam.config import CONFIG_SECTIONS, dump_sections, section_model
+
+    text = dump_sections()
+    data = yaml.safe_load(text)
+    assert list(data) == list(CONFIG_SECTIONS) == ["robot", "sim", "slam", "mapping"]
+    for section in CONFIG_SECTIONS:
+        model = section_model(section)
+        assert model.model_validate(data[section]) == model(), section
+    assert yaml.safe_load(dump_sections(["mapping"])) == {"mapping": data["mapping"]}
+
+
+def test_config_dump_command_prints_the_sections(capsys: pytest.CaptureFixture[str]) -> None:
+    from fleetslam.cli.main import main
+    from fleetslam.config import dump_sections
+
+    assert main(["config", "dump", "slam"]) == 0
+    assert capsys.readouterr().out == dump_sections(["slam"])

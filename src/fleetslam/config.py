@@ -8,8 +8,9 @@ environment variables only override those defaults. Errors name the file, the ke
 
 from __future__ import annotations
 
+import importlib
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -147,6 +148,32 @@ def load_config(
         return model.model_validate(data)
     except ValidationError as err:
         raise ConfigError(_format_validation_error(err, source)) from err
+
+
+#: section name -> "module:ClassName" of its ConfigModel, imported lazily: the sections of `fleetslam config dump`.
+CONFIG_SECTIONS: dict[str, str] = {
+    "robot": "fleetslam.robot.config:RobotConfig",
+    "sim": "fleetslam.sim.config:SimConfig",
+    "slam": "fleetslam.slam.config:SlamConfig",
+    "mapping": "fleetslam.mapping.config:MappingConfig",
+}
+
+
+def section_model(section: str) -> type[BaseModel]:
+    """The model class of a section of :data:`CONFIG_SECTIONS`."""
+    module_name, _, class_name = CONFIG_SECTIONS[section].partition(":")
+    model: type[BaseModel] = getattr(importlib.import_module(module_name), class_name)
+    return model
+
+
+def dump_sections(sections: Sequence[str] | None = None) -> str:
+    """The defaults of ``sections`` (default: all) as YAML, each under its name, each key with its documentation."""
+    chunks = []
+    for section in sections or list(CONFIG_SECTIONS):
+        body = dump_config(section_model(section)())
+        indented = "".join(f"  {line}\n" if line else "\n" for line in body.splitlines())
+        chunks.append(f"{section}:\n{indented}")
+    return "\n".join(chunks)
 
 
 def dump_config(config: BaseModel) -> str:

@@ -157,7 +157,7 @@ def test_record_gets_what_latched_publishers_sent_before_it_started(
 
 
 def test_recording_qos_follows_the_publishers() -> None:
-    from fleetslam.cli.record import recording_qos
+    from fleetslam.middleware.recorder import recording_qos
 
     latched, plain = QoSProfile(durability="transient_local"), QoSProfile()
     assert recording_qos([latched, latched]).durability == "transient_local"

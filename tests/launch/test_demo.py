@@ -13,8 +13,8 @@ import pytest
 
 from fleetslam.launch.demo import (
     DemoResult,
-    _decoded_stamp_pose,
-    _Monitor,
+    Monitor,
+    decoded_stamp_pose,
     odometry_stamp_pose,
     run_demo,
     slam_values,
@@ -116,7 +116,7 @@ def test_report_tables_per_robot_slam_and_per_process(tmp_path: Path) -> None:
 def test_monitor_keeps_each_robots_latest_slam_diagnostics_and_its_odometry(
     make_context: Callable[..., Context], tmp_path: Path
 ) -> None:
-    monitor = _Monitor(make_context(), ["c3po", "r2d2"], tmp_path / "recording")
+    monitor = Monitor(make_context(), ["c3po", "r2d2"], tmp_path / "recording")
     slam = Node("slam", context=make_context("c3po"))
     diagnostics = slam.create_publisher("diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5))
     truth = slam.create_publisher("nav_msgs/msg/Odometry", "ground_truth/odom", QoSProfile(depth=100))
@@ -160,7 +160,7 @@ def test_odometry_stamp_and_pose_are_read_where_cdr_puts_them(frame_id: str, chi
     stamp, pose = odometry_stamp_pose(data)
     assert stamp == pytest.approx(1_700_000_123.456789012)
     np.testing.assert_array_equal(pose, np.concatenate([position, quaternion]))
-    decoded = _decoded_stamp_pose(data)  # the full decode, for payloads the reader does not take
+    decoded = decoded_stamp_pose(data)  # the full decode, for payloads the reader does not take
     assert decoded[0] == pytest.approx(stamp) and np.array_equal(decoded[1], pose)
 
 

@@ -12,6 +12,7 @@ import pytest
 from fleetslam.errors import ConfigError, MiddlewareError, RouterUnreachableError
 from fleetslam.middleware import Context, Node
 from fleetslam.middleware.context import apply_config_overrides, session_config
+from fleetslam.middleware.recording import BagWriter
 
 from ..support import free_port
 
@@ -96,9 +97,30 @@ def test_one_id_counter_per_context_from_zero(make_context: Callable[..., Contex
     second = Node("second", context=ctx, statistics_period_s=0)
     sub = second.create_subscription("std_msgs/msg/String", "a", lambda m: None)
     assert (first.node_id, pub.entity_id, second.node_id, sub.entity_id) == (0, 1, 2, 3)
-    assert ctx.nodes == [first, second]
+    assert ctx.closables == [first, second]
     other = make_context()
     assert Node("n", context=other, statistics_period_s=0).node_id == 0
+
+
+def test_context_closes_what_it_owns_in_order_and_forgets_what_was_closed(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    """The context knows closables, not nodes: a recording handed to it is closed with it, after the node that
+    writes into it (owned first), so no callback writes into a closed bag."""
+    ctx = make_context("c3po")
+    early = Node("early", context=ctx, statistics_period_s=0)
+    node = Node("recorder", context=ctx, statistics_period_s=0)
+    publisher = node.create_publisher("std_msgs/msg/String", "out")
+    writer = BagWriter(tmp_path / "bag")
+    ctx.own(writer)
+    assert ctx.closables == [early, node, writer]
+    early.destroy()
+    assert ctx.closables == [node, writer]
+    ctx.disown(early)  # already forgotten: nothing happens
+    ctx.close()
+    assert ctx.closables == [] and (tmp_path / "bag" / "metadata.yaml").is_file()
+    with pytest.raises(MiddlewareError, match="destroyed"):  # the node was closed with the context
+        publisher.publish_raw(b"\x00\x01\x00\x00")
 
 
 def test_close_undeclares_everything_and_is_idempotent(make_context: Callable[..., Context]) -> None:
@@ -110,7 +132,7 @@ def test_close_undeclares_everything_and_is_idempotent(make_context: Callable[..
     assert observer.wait_for(lambda g: len([t for t in g.tokens() if t.zid == ctx.zid]) == 3, 5)
     ctx.close()
     ctx.close()
-    assert ctx.closed and ctx.nodes == []
+    assert ctx.closed and ctx.closables == []
     assert observer.wait_for(lambda g: not [t for t in g.tokens() if t.zid == ctx.zid], 5)
 
 
@@ -140,3 +162,21 @@ def test_taken_listen_endpoint_is_a_clear_error(router_endpoint: str) -> None:
     taken = router_endpoint  # the router listens there
     with pytest.raises(MiddlewareError, match=f"cannot open a Zenoh session .*listen \\['{taken}'\\].*in use"):
         Context(router=router_endpoint, listen=taken, environ={})
+
+
+def test_the_context_knows_closables_not_nodes() -> None:
+    """No import cycle: context.py imports nothing of the node modules, not even for typing, and no module reaches
+    into the context's private members."""
+    import ast
+
+    import fleetslam.middleware
+    import fleetslam.middleware.context as context_module
+
+    tree = ast.parse(Path(context_module.__file__).read_text())
+    imported = {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    node_modules = ("node", "publisher", "subscription", "service", "client", "timer", "entity", "executor")
+    assert not {m for m in imported if m.rsplit(".", 1)[-1] in node_modules}
+    for path in Path(fleetslam.middleware.__file__).parent.glob("*.py"):
+        if path.name != "context.py":
+            assert "context._" not in path.read_text(), path.name

@@ -296,8 +296,8 @@ def test_node_context_manager_and_destroyed_entities(make_context: Callable[...,
     ctx = make_context()
     with Node("short", context=ctx, statistics_period_s=0) as node:
         pub = node.create_publisher("std_msgs/msg/String", "x")
-        assert ctx.nodes == [node]
-    assert ctx.nodes == []
+        assert ctx.closables == [node]
+    assert ctx.closables == []
     with pytest.raises(MiddlewareError, match="destroyed"):
         pub.publish(String(data="late"))
     with pytest.raises(MiddlewareError, match="destroyed"):

@@ -1,21 +1,16 @@
-"""`fleetslam map build | info | convert | compare`: occupancy octree maps in OctoMap's `.bt` / `.ot` files."""
+"""`fleetslam map build | info | convert | compare | node`: occupancy octree maps in OctoMap's `.bt` / `.ot` files.
+
+The work is :mod:`fleetslam.mapping.build` and :mod:`fleetslam.mapping.map_files`; this module parses and prints."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fleetslam.errors import ConfigError, MapFileError
-
-if TYPE_CHECKING:
-    from fleetslam.mapping.octree import OccupancyOctree
-
-log = logging.getLogger(__name__)
+from fleetslam.errors import ConfigError
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -95,123 +90,48 @@ def _parse_origin(text: str | None) -> np.ndarray | None:
     return np.array(values)
 
 
-def _output_kind(path: Path) -> str:
-    suffix = path.suffix.lower()
-    if suffix not in (".bt", ".ot"):
-        raise ConfigError(f"{path}: the output must end in .bt or .ot, not '{suffix}'")
-    return suffix[1:]
-
-
 def run_build(args: argparse.Namespace) -> int:
+    from fleetslam.mapping.build import build_from_rgbd, build_from_scans
+    from fleetslam.mapping.map_files import output_kind
     from fleetslam.mapping.scan_io import SEQUENCE_KINDS, input_kind
 
-    output_kind = _output_kind(args.output)
+    output_kind(args.output)
     if not args.resolution > 0:
         raise ConfigError(f"--resolution must be > 0, got {args.resolution}")
     kind = input_kind(args.input, args.kind)
     if kind in SEQUENCE_KINDS:
         if args.origin is not None:
             raise ConfigError("--origin: RGB-D frames are seen from their camera poses; leave --origin out")
-        return _build_from_rgbd(args, kind, output_kind)
+        built = build_from_rgbd(
+            args.input, args.output, kind=kind, resolution=args.resolution, max_range=args.max_range,
+            trajectory=args.trajectory, max_difference=args.max_difference, every=args.every,
+            pixel_step=args.pixel_step, min_depth=args.min_depth, max_depth=args.max_depth,
+            progress=not args.no_progress,
+        )  # fmt: skip
+        used = built.counts
+        every = f" (--every {args.every})" if args.every > 1 else ""
+        print(
+            f"{args.output}: {used.used} of {used.frames} frames{every}, {used.points} points, {built.nodes} nodes "
+            f"at {args.resolution} m"
+        )
+        if built.skipped is not None:
+            print(built.skipped)
+        return 0
     if args.trajectory is not None:
         raise ConfigError(
             f"--trajectory: {args.input} is a scan file ({kind}) with its own poses, not an RGB-D sequence"
         )
-    return _build_from_scans(args, kind, output_kind)
-
-
-def _write_tree(tree: OccupancyOctree, path: Path, output_kind: str) -> int:
-    """Write the map; the number of nodes in the file (a .bt's max-likelihood tree prunes further)."""
-    return tree.write_binary(path) if output_kind == "bt" else tree.write(path)
-
-
-def _build_from_scans(args: argparse.Namespace, kind: str, output_kind: str) -> int:
-    from tqdm import tqdm
-
-    from fleetslam.mapping.octree import OccupancyOctree
-    from fleetslam.mapping.scan_io import load_scans
-
-    scans = load_scans(args.input, kind=kind, origin=_parse_origin(args.origin))
-    tree = OccupancyOctree(args.resolution)
-    total = sum(len(scan.points) for scan in scans)
-    with tqdm(total=total, unit="pt", unit_scale=True, disable=args.no_progress, desc="integrating") as bar:
-        for scan in scans:
-            tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
-            bar.update(len(scan.points))
-    written = _write_tree(tree, args.output, output_kind)
-    print(f"{args.output}: {len(scans)} scans, {total} points, {written} nodes at {args.resolution} m")
+    scans = build_from_scans(
+        args.input, args.output, kind=kind, resolution=args.resolution, max_range=args.max_range,
+        origin=_parse_origin(args.origin), progress=not args.no_progress,
+    )  # fmt: skip
+    print(f"{args.output}: {scans.scans} scans, {scans.points} points, {scans.nodes} nodes at {args.resolution} m")
     return 0
-
-
-def _build_from_rgbd(args: argparse.Namespace, kind: str, output_kind: str) -> int:
-    from tqdm import tqdm
-
-    from fleetslam.mapping.octree import OccupancyOctree
-    from fleetslam.mapping.rgbd_scans import open_rgbd_scans
-
-    scans = open_rgbd_scans(
-        args.input,
-        kind=kind,
-        trajectory=args.trajectory,
-        max_difference=args.max_difference,
-        every=args.every,
-        pixel_step=args.pixel_step,
-        min_depth=args.min_depth,
-        max_depth=args.max_depth,
-    )
-    tree = OccupancyOctree(args.resolution)
-    with tqdm(total=len(scans), unit="frame", disable=args.no_progress, desc="integrating") as bar:
-        for scan in scans:
-            tree.insert_point_cloud(scan.world_points(), scan.origin, max_range=args.max_range)
-            bar.update(scans.counts.frames - bar.n)
-        bar.update(scans.counts.frames - bar.n)
-    written = _write_tree(tree, args.output, output_kind)
-    used = scans.counts
-    every = f" (--every {args.every})" if args.every > 1 else ""
-    print(
-        f"{args.output}: {used.used} of {used.frames} frames{every}, {used.points} points, {written} nodes "
-        f"at {args.resolution} m"
-    )
-    skipped = scans.skipped_summary()
-    if skipped is not None:
-        print(skipped)
-    return 0
-
-
-def map_info(path: Path) -> dict[str, Any]:
-    """What `fleetslam map info` prints, as a dict."""
-    from fleetslam.mapping.keys import TREE_DEPTH, TREE_MAX_VAL
-    from fleetslam.mapping.octomap_io import read_octree_file
-
-    tree = read_octree_file(path)
-    leaves = tree.leaves
-    occupied = int(np.count_nonzero(leaves.log_odds >= 0.0))
-    info: dict[str, Any] = {
-        "file": str(path),
-        "kind": tree.kind,
-        "tree_type": tree.tree_id,
-        "resolution": tree.resolution,
-        "nodes": tree.num_nodes,
-        "leaves": len(leaves),
-        "occupied_leaves": occupied,
-        "free_leaves": len(leaves) - occupied,
-    }
-    if len(leaves):
-        size = np.power(2.0, TREE_DEPTH - leaves.depths.astype(np.float64))[:, None]
-        lo = (leaves.keys.astype(np.float64) - TREE_MAX_VAL) * tree.resolution
-        volume = size[:, 0] ** 3 * tree.resolution**3
-        info["bbox_min"] = [round(float(v), 6) for v in lo.min(axis=0)]
-        info["bbox_max"] = [round(float(v), 6) for v in (lo + size * tree.resolution).max(axis=0)]
-        info["occupied_volume_m3"] = float(volume[leaves.log_odds >= 0.0].sum())
-        info["free_volume_m3"] = float(volume[leaves.log_odds < 0.0].sum())
-    inner = tree.num_nodes - len(leaves)
-    # OctoMap's OcTree::memoryUsage(): the tree object, 16 bytes per node, 8 child pointers per inner node.
-    info["octomap_memory_bytes"] = 320 + 16 * tree.num_nodes + 64 * inner
-    info["file_bytes"] = path.stat().st_size
-    return info
 
 
 def run_info(args: argparse.Namespace) -> int:
+    from fleetslam.mapping.map_files import map_info
+
     info = map_info(args.file)
     if args.json:
         print(json.dumps(info))
@@ -223,50 +143,16 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def run_convert(args: argparse.Namespace) -> int:
-    from fleetslam.mapping.octomap_io import read_octree_file, write_bt, write_ot
+    from fleetslam.mapping.map_files import convert_map
 
-    output_kind = _output_kind(args.output)
-    tree = read_octree_file(args.input)
-    if output_kind == "bt":
-        written = write_bt(args.output, tree.resolution, tree.leaves)
-    else:
-        if tree.kind == "bt":
-            log.info("%s holds only max-likelihood states; the .ot file gets clamped log-odds", args.input)
-        written = write_ot(args.output, tree.resolution, tree.leaves)
-    print(f"{args.input} ({tree.kind}) -> {args.output} ({output_kind}, {written} nodes)")
+    done = convert_map(args.input, args.output)
+    print(f"{args.input} ({done.input_kind}) -> {args.output} ({done.output_kind}, {done.nodes} nodes)")
     return 0
 
 
-def map_compare(path_a: Path, path_b: Path) -> dict[str, Any]:
-    """Volumes per state pair of two maps of the same resolution, and their agreement."""
-    from fleetslam.mapping.octomap_io import read_octree_file
-    from fleetslam.mapping.products import STATE_NAMES, state_confusion
-
-    a, b = read_octree_file(path_a), read_octree_file(path_b)
-    if abs(a.resolution - b.resolution) > 1e-12:
-        raise MapFileError(f"{path_b}: resolution {b.resolution} differs from {path_a}'s {a.resolution}")
-    confusion = state_confusion(a.leaves, b.leaves)
-    voxel = a.resolution**3
-    known = confusion.sum() - confusion[0, 0]
-    agree = confusion[1, 1] + confusion[2, 2]
-    return {
-        "a": str(path_a),
-        "b": str(path_b),
-        "resolution": a.resolution,
-        "volume_m3": {
-            f"{STATE_NAMES[i]}/{STATE_NAMES[j]}": float(confusion[i, j] * voxel)
-            for i in range(3)
-            for j in range(3)
-            if (i, j) != (0, 0)
-        },
-        "agreement": float(agree / known) if known else 1.0,
-        "occupied_iou": float(
-            confusion[2, 2] / max(confusion[2, :].sum() + confusion[:, 2].sum() - confusion[2, 2], 1)
-        ),
-    }
-
-
 def run_compare(args: argparse.Namespace) -> int:
+    from fleetslam.mapping.map_files import map_compare
+
     result = map_compare(args.a, args.b)
     if args.json:
         print(json.dumps(result))

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import time
 
-from fleetslam.cli.common import cli_node, settle
-from fleetslam.middleware.recording import bag_topics, read_bag
+from fleetslam.cli.common import cli_node
+from fleetslam.middleware.player import play as play_recording
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -19,34 +18,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def play(path: str, *, rate: float = 1.0, loop: bool = False, topics: list[str] | None = None) -> int:
     """Publish the recording's messages with their relative timing divided by ``rate``; returns the count."""
-    if rate <= 0:
+    if rate <= 0:  # before joining the fleet
         raise ValueError(f"rate must be positive, got {rate}")
-    types = bag_topics(path)
-    selected = set(topics) if topics else None
-    sent = 0
     with cli_node("play") as node:
-        publishers = {
-            (topic, type_name): node.create_publisher(type_name, topic)
-            for topic, type_name in types.items()
-            if selected is None or topic in selected
-        }
-        settle(0.5)
-        while True:
-            first_stamp = None
-            start = time.monotonic()
-            for message in read_bag(path, selected):
-                if first_stamp is None:
-                    first_stamp = message.timestamp_ns
-                due = start + (message.timestamp_ns - first_stamp) / 1e9 / rate
-                delay = due - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-                publishers[(message.topic, message.type_name)].publish_raw(message.data)
-                sent += 1
-            if not loop:
-                break
-        settle(0.3)
-    return sent
+        return play_recording(node, path, rate=rate, loop=loop, topics=topics)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -45,12 +45,11 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from fleetslam.errors import ConfigError, MiddlewareError, RouterUnreachableError
-from fleetslam.middleware.lifetime import close_at_exit
+from fleetslam.middleware.lifetime import Closable, close_at_exit
 from fleetslam.middleware.names import domain_id_from_env, namespace_from_env, normalize_namespace
 
 if TYPE_CHECKING:
     from fleetslam.middleware.graph import Graph
-    from fleetslam.middleware.node import Node
 
 log = logging.getLogger(__name__)
 
@@ -239,7 +238,8 @@ class Context:
         self.zid = str(self.session.info.zid())
         self._ids = itertools.count()
         self._ids_lock = threading.Lock()
-        self._nodes: list[Node] = []
+        self._owned: dict[Closable, None] = {}  # an ordered set: closed in the order they came
+        self._owned_lock = threading.Lock()
         self._closed = threading.Event()
         self._graph: Graph | None = None
         self._graph_lock = threading.Lock()
@@ -266,23 +266,27 @@ class Context:
                 raise RouterUnreachableError(self._unreachable_message())
             time.sleep(0.02)
 
-    # -- ids, nodes, graph -----------------------------------------------------------------------------------
+    # -- ids, owned objects, graph ---------------------------------------------------------------------------
     def next_entity_id(self) -> int:
         """Next id from the context's one counter (nodes and entities share it, from 0, as in rmw_zenoh)."""
         with self._ids_lock:
             return next(self._ids)
 
-    def _register(self, node: Node) -> None:
-        self._nodes.append(node)
+    def own(self, closable: Closable) -> None:
+        """Close ``closable`` when the context closes (a node owns itself to its context when it is made)."""
+        with self._owned_lock:
+            self._owned[closable] = None
 
-    def _unregister(self, node: Node) -> None:
-        if node in self._nodes:
-            self._nodes.remove(node)
+    def disown(self, closable: Closable) -> None:
+        """Forget ``closable`` (it was closed on its own); nothing happens if the context does not own it."""
+        with self._owned_lock:
+            self._owned.pop(closable, None)
 
     @property
-    def nodes(self) -> list[Node]:
-        """The live nodes of this context."""
-        return list(self._nodes)
+    def closables(self) -> list[Closable]:
+        """What the context closes when it closes (its live nodes), in the order they came."""
+        with self._owned_lock:
+            return list(self._owned)
 
     @property
     def graph(self) -> Graph:
@@ -327,11 +331,14 @@ class Context:
             log.info("interrupted")
 
     def close(self) -> None:
-        """Destroy every node (their tokens disappear from the graph) and close the session; idempotent."""
+        """Close what the context owns (nodes: their tokens disappear from the graph), then the session;
+        idempotent."""
         if self._closed.is_set():
             return
-        for node in list(self._nodes):
-            node.destroy()
+        for closable in self.closables:
+            closable.close()
+        with self._owned_lock:
+            self._owned.clear()
         if self._graph is not None:
             self._graph.close()
         self._closed.set()

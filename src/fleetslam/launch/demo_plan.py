@@ -1,0 +1,137 @@
+"""The demo's process plan: which processes `fleetslam demo` starts, with their command lines, environments,
+restart policies and niceness (``mode="sim"``: per robot a SLAM and a mapping node, the fleet map, the simulated
+plant; ``mode="synthetic"``: the example agents), and where the simulated robots start."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from fleetslam.launch.description import ProcessSpec, RestartPolicy
+
+#: Where each demo robot drives (centre of its circle), so the two agents' maps sit side by side.
+ROBOT_CENTERS = [(0.0, 0.0), (8.0, 0.0), (0.0, 8.0), (8.0, 8.0)]
+
+
+def fleet_env(router: str, security: Path | None, identity: str | None = None) -> dict[str, str]:
+    """How a demo process joins: the router's endpoint, and with a keystore its folder and the identity it uses
+    (agents default to their own, from FLEETSLAM_AGENT)."""
+    if security is None:
+        return {"FLEETSLAM_ROUTER": router, "FLEETSLAM_LISTEN": "tcp/127.0.0.1:0"}
+    env = {"FLEETSLAM_ROUTER": router, "FLEETSLAM_SECURITY": str(security)}
+    return {**env, "FLEETSLAM_IDENTITY": identity} if identity else env
+
+
+def agent_processes(robots: list[str], router: str, security: Path | None = None) -> list[ProcessSpec]:
+    processes = []
+    for i, robot in enumerate(robots):
+        peers = [r for r in robots if r != robot]
+        cx, cy = ROBOT_CENTERS[i % len(ROBOT_CENTERS)]
+        processes.append(
+            ProcessSpec(
+                label=f"{robot}/agent",
+                host="localhost",
+                argv=[
+                    sys.executable,
+                    "-m",
+                    "fleetslam.launch.example_agent",
+                    "--peers",
+                    *peers,
+                    "--center",
+                    str(cx),
+                    str(cy),
+                ],
+                environment={**fleet_env(router, security), "FLEETSLAM_AGENT": robot},
+                restart=RestartPolicy(initial_backoff_s=1.0),
+            )
+        )
+    return processes
+
+
+def fleetslam_argv(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fleetslam.cli.main", *args]
+
+
+def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, Any]]:
+    """Each robot's camera pose at start in the world, [x, y, z, roll, pitch, yaw] (where its SLAM map sits),
+    and its camera extrinsics T_base_link_optical (to compare SLAM camera poses with base ground truth)."""
+    from scipy.spatial.transform import Rotation
+
+    from fleetslam.sim.config import SimConfig
+    from fleetslam.sim.plant import Plant
+
+    config = SimConfig()
+    placements = [p for p in config.robots if p.name in robots]
+    poses = {}
+    extrinsics = {}
+    with Plant(config, placements, controllers=False) as plant:
+        for name in plant.robot_names:
+            pose = plant.camera_pose(name)
+            rpy = Rotation.from_matrix(pose[:3, :3]).as_euler("xyz")
+            poses[name] = [*pose[:3, 3].tolist(), *rpy.tolist()]
+            extrinsics[name] = plant.camera_extrinsics(name)
+    return poses, extrinsics
+
+
+#: The map nodes' numba kernels on one thread: with seven processes on two cores, a parallel region waits for a
+#: thread that another process holds (a 2.5 ms scan took 5-50 ms), and OpenMP's idle threads spin.
+ONE_NUMBA_THREAD = {"NUMBA_NUM_THREADS": "1"}
+#: The map nodes yield the CPU to SLAM and the simulated sensors: a map that lags a second costs nothing, a SLAM
+#: node starved while they compile their kernels at start dropped frames and drifted through its first lap.
+MAP_NICENESS = 10
+
+
+def station_process(env: dict[str, str], port: int, token: str) -> ProcessSpec:
+    """The operator console in a process of its own: its encoding and WebSocket traffic are not the monitor's to
+    pay for (the report shows each), and a console that fails restarts without stopping the demo (with the same
+    token, so an open page reconnects)."""
+    return ProcessSpec(label="station", host="localhost", argv=fleetslam_argv("station", "--port", str(port)),
+                       environment={**env, "FLEETSLAM_STATION_TOKEN": token}, restart=RestartPolicy())  # fmt: skip
+
+
+def sim_processes(
+    robots: list[str],
+    router: str,
+    out_dir: Path,
+    resolution: str,
+    camera_hz: float = 10.0,
+    route: str = "loop",
+    security: Path | None = None,
+) -> tuple[list[ProcessSpec], dict[str, Any]]:
+    env = fleet_env(router, security)
+    # The fleet map and the simulator (every robot's sensors, /clock) act for the whole fleet: the station's identity.
+    station_env = fleet_env(router, security, "station")
+    maps_dir = f"maps_dir={(out_dir / 'maps').resolve()}"  # the only place the save services write to
+    processes = []
+    for robot in robots:
+        agent_env = {**env, "FLEETSLAM_AGENT": robot}
+        peers = "[" + ",".join(r for r in robots if r != robot) + "]"
+        # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend.
+        processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
+                                     argv=fleetslam_argv("slam", "node", "--set", f"peers={peers}", "--set", maps_dir),
+                                     environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
+                                     restart=RestartPolicy()))  # fmt: skip
+        processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost",
+                                     argv=fleetslam_argv("map", "node", "--set", maps_dir),
+                                     environment={**agent_env, **ONE_NUMBA_THREAD},
+                                     restart=RestartPolicy(), niceness=MAP_NICENESS))  # fmt: skip
+    fleet_config = out_dir / "fleet_map.yaml"
+    import yaml
+
+    poses, extrinsics = start_poses(robots)
+    fleet_config.write_text(
+        yaml.safe_dump({"start_poses": poses, "agents": robots, "maps_dir": str((out_dir / "maps").resolve())})
+    )
+    processes.append(ProcessSpec(label="fleet_map", host="localhost",
+                                 argv=fleetslam_argv("fleet", "node", "--config", str(fleet_config)),
+                                 environment={**station_env, **ONE_NUMBA_THREAD}, restart=RestartPolicy(),
+                                 niceness=MAP_NICENESS))  # fmt: skip
+    processes.append(ProcessSpec(label="sim", host="localhost",
+                                 argv=fleetslam_argv("sim", "run", "--robots", ",".join(robots), "--camera-hz",
+                                                 f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
+                                                 "--laps"),
+                                 environment={**station_env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+                                 restart=RestartPolicy()))  # fmt: skip
+    return processes, extrinsics

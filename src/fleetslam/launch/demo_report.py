@@ -1,0 +1,317 @@
+"""The demo's results: what a run measured (:class:`DemoResult`), the files written from it (statistics, processes
+and SLAM figures as JSON, trajectories and bandwidth plots) and the report, ``report.md`` and ``report.html``
+rendered from one :class:`Report` through Jinja2 templates (``templates/report.{md,html}.j2``)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fleetslam.launch.supervisor import ProcessUsage
+from fleetslam.middleware.stats_table import StatsRow
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DemoResult:
+    """What a demo run measured."""
+
+    out_dir: Path
+    duration_s: float
+    rows: list[StatsRow]
+    history: list[dict[str, Any]] = field(default_factory=list)
+    ate: dict[str, float] = field(default_factory=dict)
+    """ATE RMSE (m) per robot, SLAM against ground truth."""
+    plots: list[Path | None] = field(default_factory=list)
+    """Extra figures for the report."""
+    processes: list[ProcessUsage] = field(default_factory=list)
+    """CPU and peak memory of every process over the run, the demo's own first."""
+    slam: dict[str, dict[str, str] | None] = field(default_factory=dict)
+    """Per robot, the values of its latest SLAM diagnostics (None: it never published any)."""
+
+    def per_agent(self) -> dict[str, dict[str, float]]:
+        totals: dict[str, dict[str, float]] = {}
+        for row in self.rows:
+            t = totals.setdefault(row.agent, {"bandwidth_bps": 0.0, "delivered": 0, "dropped": 0})
+            t["bandwidth_bps"] += row.bandwidth_bps
+            t["delivered"] += row.delivered
+            t["dropped"] += row.dropped
+        return totals
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of the report: column titles, which columns are right-aligned (figures), rows of cell texts."""
+
+    columns: Sequence[str]
+    right: Sequence[bool]
+    rows: list[list[str]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Section:
+    """A titled section of the report: an optional paragraph, then a table."""
+
+    title: str
+    table: Table
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class Figure:
+    alt: str
+    src: str
+    """Relative to the report."""
+
+
+@dataclass(frozen=True)
+class Report:
+    """What the templates render: the title, the statistics table with its intro, the sections, the figures."""
+
+    title: str
+    intro: str
+    table: Table
+    sections: list[Section]
+    figures: list[Figure]
+
+
+#: The SLAM diagnostics in the report's per-robot table: (column, key of the ``slam`` DiagnosticStatus).
+SLAM_COLUMNS = (
+    ("frames received", "frames_received"), ("processed", "frames_processed"), ("dropped", "frames_dropped"),
+    ("relocalisations", "relocalisations"), ("loop closures", "loop_closures"),
+    ("loops retracted", "loops_retracted"), ("keyframes", "keyframes"),
+    ("lost frames", "lost_frames"), ("coasting frames", "coasting_frames"), ("odometry ms (mean)", "odometry_ms_mean"),
+)  # fmt: skip
+MISSING = "—"
+STYLE = (
+    "body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px}"
+)
+"""The HTML report's style sheet."""
+
+
+def statistics_table(rows: Sequence[StatsRow]) -> Table:
+    """The latest statistics window per topic and subscriber."""
+    columns = ("agent", "topic", "publisher → subscriber", "kB/s", "Hz", "delivered", "dropped", "age ms (mean ± std)")
+    return Table(columns, (False, False, False, True, True, True, True, True), [
+        [r.agent, r.topic, f"{r.node_pub} → {r.node_sub}", f"{r.bandwidth_bps / 1e3:.1f}", f"{r.rate_hz:.1f}",
+         str(r.delivered), str(r.dropped), f"{r.age_mean_ms:.2f} ± {r.age_std_ms:.2f}"]
+        for r in rows
+    ])  # fmt: skip
+
+
+def maps_section(maps: Sequence[Path]) -> Section | None:
+    """Node and leaf counts and extent of each map file (None without maps)."""
+    if not maps:
+        return None
+    from fleetslam.mapping.octree import OccupancyOctree
+
+    table = Table(("map", "nodes", "leaves", "occupied leaves", "free leaves", "extent (m)"),
+                  (False, True, True, True, True, False))  # fmt: skip
+    for path in maps:
+        tree = OccupancyOctree.read(path)
+        occupied, _ = tree.occupied_centers()
+        free, _ = tree.free_centers()
+        lo, hi = tree.metric_bounds()
+        extent = " × ".join(f"{v:.1f}" for v in (hi - lo))
+        table.rows.append([path.name, str(tree.num_nodes()), str(tree.num_leaf_nodes()), str(len(occupied)),
+                           str(len(free)), extent])  # fmt: skip
+    return Section("Maps", table)
+
+
+def slam_section(slam: Mapping[str, Mapping[str, str] | None], ate: Mapping[str, float]) -> Section | None:
+    """Per robot its latest SLAM diagnostics and its ATE; "—" where a robot has no figure (None without robots)."""
+    robots = sorted(set(slam) | set(ate))
+    if not robots:
+        return None
+    table = Table(("robot", *(c for c, _ in SLAM_COLUMNS), "ATE RMSE (m)"), (False, *[True] * (len(SLAM_COLUMNS) + 1)))
+    for robot in robots:
+        values = slam.get(robot) or {}
+        cells = [values.get(key, MISSING) for _, key in SLAM_COLUMNS]
+        cells.append(f"{ate[robot]:.3f}" if robot in ate else MISSING)
+        table.rows.append([robot, *cells])
+    text = ("Counts since the SLAM node started (its latest `slam/diagnostics`); ATE: SLAM against ground truth, "
+            "SE(3)-aligned, translation RMSE.")  # fmt: skip
+    return Section("SLAM per robot", table, text)
+
+
+def process_section(processes: Sequence[ProcessUsage]) -> Section | None:
+    """CPU (% of one core, averaged over the run) and peak memory of every process (None without processes)."""
+    if not processes:
+        return None
+    table = Table(("process", "pid", "CPU %", "CPU s", "peak RSS (MiB)", "restarts"), (False, *[True] * 5))
+    for p in processes:
+        table.rows.append([p.label, str(p.pid) if p.pid is not None else MISSING, f"{p.cpu_percent:.1f}",
+                           f"{p.cpu_s:.1f}", f"{p.peak_rss_mib:.0f}", str(p.restarts)])  # fmt: skip
+    text = ("CPU: % of one core, averaged over each process's life until the end of the run (the demo's own "
+            "process: over the run). Peak RSS: the most resident memory it held.")  # fmt: skip
+    return Section("Processes", table, text)
+
+
+def agents_section(result: DemoResult) -> Section:
+    """Bandwidth and message counts summed per agent."""
+    table = Table(("agent", "kB/s", "delivered", "dropped"), (False, True, True, True))
+    for agent, t in sorted(result.per_agent().items()):
+        table.rows.append([agent, f"{t['bandwidth_bps'] / 1e3:.1f}", str(int(t["delivered"])), str(int(t["dropped"]))])
+    return Section("Per agent", table)
+
+
+def build_report(result: DemoResult, figures: Sequence[Path | None] = ()) -> Report:
+    """The report of a run: its tables (maps read from ``out_dir/maps/*.bt``) and ``figures`` (None: left out)."""
+    maps_dir = result.out_dir / "maps"
+    maps = sorted(maps_dir.glob("*.bt")) if maps_dir.is_dir() else []
+    sections = [maps_section(maps), slam_section(result.slam, result.ate), process_section(result.processes),
+                agents_section(result)]  # fmt: skip
+    return Report(
+        title="fleetslam demo report",
+        intro=f"Run of {result.duration_s:.0f} s. Latest statistics window per topic and subscriber:",
+        table=statistics_table(result.rows),
+        sections=[s for s in sections if s is not None],
+        figures=[Figure(plot.stem, plot.name) for plot in figures if plot is not None],
+    )
+
+
+@cache
+def _templates() -> Any:
+    import jinja2
+
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("fleetslam.launch", "templates"),
+        autoescape=jinja2.select_autoescape(["html.j2"]),
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+        undefined=jinja2.StrictUndefined,
+    )
+
+
+def render_markdown(report: Report) -> str:
+    text: str = _templates().get_template("report.md.j2").render(report=report)
+    return text
+
+
+def render_html(report: Report) -> str:
+    """A standalone HTML page (cell texts escaped by the template engine)."""
+    text: str = _templates().get_template("report.html.j2").render(report=report, style=STYLE)
+    return text
+
+
+def write_results(result: DemoResult) -> None:
+    """statistics.json, processes.json, slam.json, report.md/report.html and the plots in the output folder."""
+    out = result.out_dir
+    (out / "statistics.json").write_text(json.dumps([r.as_dict() for r in result.rows], indent=1))
+    (out / "processes.json").write_text(json.dumps([p.as_dict() for p in result.processes], indent=1))
+    (out / "slam.json").write_text(json.dumps(result.slam, indent=1))
+    report = build_report(result, [*result.plots, plot_bandwidth(result)])
+    (out / "report.md").write_text(render_markdown(report))
+    (out / "report.html").write_text(render_html(report))
+
+
+def write_trajectories(
+    trajectories: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]],
+    robots: list[str],
+    out_dir: Path,
+    extrinsics: dict[str, Any],
+) -> dict[str, float]:
+    """TUM files of every robot's SLAM and ground-truth camera trajectory, and the ATE (m) of each."""
+    from fleetslam.trajectory import Trajectory, write_tum
+
+    ate: dict[str, float] = {}
+    for robot in robots:
+        tracks = {}
+        for kind, folder in (("slam", "trajectories"), ("truth", "ground_truth")):
+            stamps, poses = trajectories.get(f"{robot}/{kind}", (np.zeros(0), np.zeros((0, 4, 4))))
+            if kind == "truth" and robot in extrinsics:  # base_link ground truth → camera optical frame
+                poses = poses @ extrinsics[robot]
+            tracks[kind] = Trajectory.from_lists(stamps.tolist(), list(poses))
+            write_tum(out_dir / folder / f"{robot}.txt", tracks[kind])
+        if len(tracks["slam"]) >= 3 and len(tracks["truth"]) >= 3:
+            try:
+                from fleetslam.eval import ape
+
+                ate[robot] = float(ape(tracks["truth"], tracks["slam"], align=True, max_diff=0.1).rmse)
+            except Exception as err:
+                log.warning("ATE of %s: %s", robot, err)
+    return ate
+
+
+def plot_trajectories(robots: list[str], out_dir: Path) -> Path | None:
+    """Ground truth and SLAM paths (SLAM placed by the robots' start poses) over the fleet map's occupied cells."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import yaml
+
+        from fleetslam.geometry import pose_from_xyz_rpy
+        from fleetslam.mapping.octree import OccupancyOctree
+        from fleetslam.trajectory import read_tum
+    except ImportError:
+        return None
+    fig, ax = plt.subplots(figsize=(9, 6.5), dpi=110)
+    fleet_map = out_dir / "maps" / "fleet.bt"
+    if fleet_map.is_file():
+        centres, _ = OccupancyOctree.read(fleet_map).occupied_centers()
+        band = centres[(centres[:, 2] > 0.1) & (centres[:, 2] < 1.5)]
+        ax.scatter(band[:, 0], band[:, 1], s=0.3, c="0.6", label="fleet map (occupied, 0.1–1.5 m)")
+    starts = yaml.safe_load((out_dir / "fleet_map.yaml").read_text()).get("start_poses", {})
+    for robot in robots:
+        truth, slam = out_dir / "ground_truth" / f"{robot}.txt", out_dir / "trajectories" / f"{robot}.txt"
+        if not truth.is_file() or not slam.is_file():
+            continue
+        gt = read_tum(truth).positions
+        start = pose_from_xyz_rpy(*starts[robot]) if robot in starts else np.eye(4)
+        est = read_tum(slam).poses
+        placed = (start @ est)[:, :3, 3] if len(est) else np.zeros((0, 3))
+        (line,) = ax.plot(gt[:, 0], gt[:, 1], "--", linewidth=1.2, label=f"{robot} ground truth")
+        ax.plot(placed[:, 0], placed[:, 1], "-", color=line.get_color(), linewidth=1.5, label=f"{robot} SLAM")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("Trajectories over the fleet map")
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    path = out_dir / "trajectories.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_bandwidth(result: DemoResult) -> Path | None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log.warning("matplotlib is not installed: no bandwidth plot (pip install 'fleetslam[eval]')")
+        return None
+    if not result.history:
+        return None
+    t0 = min(h["t"] for h in result.history)
+    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
+    series: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for h in result.history:
+        series.setdefault((h["topic"], h["subscriber"]), []).append((h["t"] - t0, h["bandwidth_bps"] / 1e3))
+    for (topic, subscriber), points in sorted(series.items()):
+        xs, ys = zip(*points, strict=True)
+        ax.plot(xs, ys, label=f"{topic} → {subscriber}", marker=".", linewidth=1)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("bandwidth (kB/s)")
+    ax.set_title("Bandwidth per topic (from /statistics)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = result.out_dir / "bandwidth.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path

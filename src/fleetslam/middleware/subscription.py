@@ -1,0 +1,272 @@
+"""Subscriptions: samples checked and counted on Zenoh's threads, decoded and handed to the callback on the node's
+executor (or inline, on Zenoh's thread); see :class:`Subscription`."""
+
+from __future__ import annotations
+
+import collections
+import inspect
+import logging
+import struct
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import zenoh
+
+from fleetslam.errors import MessageError
+from fleetslam.middleware.context import MAX_MESSAGE_BYTES
+from fleetslam.middleware.entity import Entity
+from fleetslam.middleware.lifetime import declare_with_callback
+from fleetslam.middleware.statistics import SubscriptionStatistics
+from fleetslam.middleware.wire import (
+    ATTACHMENT_SIZE,
+    EntityKind,
+    QoSProfile,
+    decode_attachment,
+    parse_topic_key,
+    topic_key,
+    topic_key_any_type,
+)
+from fleetslam.msg import typesys
+
+if TYPE_CHECKING:
+    from fleetslam.middleware.node import Node
+
+log = logging.getLogger("fleetslam.middleware.node")
+
+DEFAULT_MAX_PAYLOAD_BYTES = MAX_MESSAGE_BYTES
+"""Larger samples are dropped (and cannot arrive through a default session anyway)."""
+
+
+class MessageInfo(NamedTuple):
+    """Metadata of a received message (a named tuple: cheap to make for every sample)."""
+
+    source_timestamp_ns: int
+    """When the publisher sent it (attachment), ns since the epoch."""
+    received_timestamp_ns: int
+    """When this process received it, ns since the epoch."""
+    sequence_number: int
+    """The publisher's sequence number, from 1."""
+    publisher_gid: bytes
+    """16-byte GID of the publisher (the graph's ``EndpointInfo.gid``)."""
+    size: int
+    """Payload size in bytes (CDR with header)."""
+    topic: str
+    type_name: str
+
+
+_ATTACHMENT = struct.Struct("<qqB")
+_COPY_ON_EXECUTOR_BYTES = 1 << 16
+"""Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
+
+
+def _accepts_info(callback: Callable[..., Any]) -> bool:
+    """Whether a callback wants ``(msg, info)``: a second positional parameter without a default, or ``*args``.
+
+    Parameters with defaults do not count, so closures binding loop variables (``lambda m, k=key: ...``) get
+    only the message.
+    """
+    try:
+        params = [
+            p
+            for p in inspect.signature(callback).parameters.values()
+            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
+        ]
+    except (TypeError, ValueError):
+        return False
+    required = [p for p in params if p.kind is not p.VAR_POSITIONAL and p.default is p.empty]
+    return len(required) >= 2 or any(p.kind is p.VAR_POSITIONAL for p in params)
+
+
+class Subscription(Entity):
+    """Receives messages of a topic; the callback runs on the node's executor.
+
+    ``type_name=None`` subscribes to any type (the type is read from each sample's key); with ``raw=True`` the
+    callback gets the CDR bytes instead of a message (for recorders and bridges).
+
+    With ``inline=True`` the callback runs directly on Zenoh's receive thread, with no queue and no hand-off to
+    the executor (the lowest latency and cost per message). Such a callback runs concurrently with the node's
+    executor callbacks, so what it shares with them needs a lock, and it must return quickly: Zenoh delivers
+    the next sample only after it. There is no local queue (no KEEP_LAST drops here, ``queue_overflows`` stays
+    0); a slow callback holds back reception instead.
+
+    A message's numeric arrays are read-only views on the received payload (see :func:`typesys.deserialize`):
+    keeping the message, or any of its arrays, keeps the payload alive; copy an array to modify it.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        type_name: str | None,
+        topic: str,
+        callback: Callable[..., Any],
+        qos: QoSProfile,
+        *,
+        raw: bool = False,
+        max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES,
+        inline: bool = False,
+    ) -> None:
+        self.any_type = type_name is None
+        if type_name is not None:
+            super().__init__(node, EntityKind.SUBSCRIBER, topic, type_name, qos)
+        else:
+            self._init_untyped(node, topic, qos)
+        self.callback = callback
+        self.raw = raw
+        self.max_payload_bytes = max_payload_bytes
+        self.inline = inline
+        self._with_info = _accepts_info(callback)
+        self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
+            maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
+        )
+        # One executor post per queued sample: the executor's queue stays bounded by the KEEP_LAST depth.
+        self._pending_lock = threading.Lock()
+        self.queue_overflows = 0
+        """Samples dropped from the local queue because the executor fell behind (KEEP_LAST)."""
+        self.statistics = SubscriptionStatistics(time.time_ns())
+        self.publisher_types: dict[bytes, str] = {}
+        session = node.context.session
+        domain = node.context.domain_id
+        self.key = topic_key_any_type(domain, topic) if self.any_type else topic_key(domain, topic, self.type_name)
+        if qos.durability == "transient_local":
+            history = zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=max(1, qos.depth))
+            recovery = (
+                zenoh.ext.RecoveryConfig(heartbeat=True, periodic_queries=None)
+                if qos.reliability == "reliable"
+                else None
+            )
+            self._subscriber: Any = declare_with_callback(
+                lambda: zenoh.ext.declare_advanced_subscriber(
+                    session, self.key, self._on_sample, history=history, recovery=recovery, subscriber_detection=True
+                )
+            )
+        else:
+            self._subscriber = declare_with_callback(lambda: session.declare_subscriber(self.key, self._on_sample))
+        if not self.any_type:
+            self._declare_token()
+
+    def _init_untyped(self, node: Node, topic: str, qos: QoSProfile) -> None:
+        # A subscription of unknown type announces no token (its type chunk would be a lie).
+        self.node = node
+        self.name = topic
+        self.type_name = ""
+        self.qos = qos
+        self.entity_id = node.context.next_entity_id()
+        self.gid = b"\x00" * 16
+        self._token = None
+        self._destroyed = False
+
+    @property
+    def topic(self) -> str:
+        return self.name
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a Zenoh thread: whatever arrives, nothing may escape from here.
+        if self._destroyed:
+            return
+        try:
+            self._receive(sample)
+        except Exception as err:
+            self.statistics.on_error(None)
+            self.node.error_log.warning(
+                f"{self.topic}:internal", "%s: dropped a sample: %s: %s", self.topic, type(err).__name__, err
+            )
+
+    def _receive(self, sample: zenoh.Sample) -> None:
+        # Hot path (every sample, on a Zenoh thread): checks, statistics and queueing only. Deserialization waits
+        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding.
+        received = time.time_ns()
+        errors = self.node.error_log
+        attachment = sample.attachment
+        zpayload = sample.payload
+        size = len(zpayload)
+        if attachment is None:
+            self.statistics.on_error(None, size)
+            errors.warning(f"{self.topic}:noatt", "%s: dropped a sample without attachment", self.topic)
+            return
+        raw_attachment = attachment.to_bytes()
+        if len(raw_attachment) == ATTACHMENT_SIZE and raw_attachment[16] == 16:
+            seq, stamp, _ = _ATTACHMENT.unpack_from(raw_attachment)
+            gid = raw_attachment[17:]
+        else:
+            try:
+                decoded = decode_attachment(raw_attachment)  # also the labelled form of Jazzy ≤ 0.2.3
+            except MessageError as err:
+                self.statistics.on_error(None, size)
+                errors.warning(f"{self.topic}:att", "%s: dropped a sample: %s", self.topic, err)
+                return
+            seq, stamp, gid = decoded.sequence_number, decoded.source_timestamp_ns, decoded.gid
+        if size > self.max_payload_bytes:
+            self.statistics.on_error(gid, size)
+            errors.warning(
+                f"{self.topic}:size",
+                "%s: dropped a %d-byte sample over the %d-byte limit",
+                self.topic,
+                size,
+                self.max_payload_bytes,
+            )
+            return
+        type_name = self.type_name
+        if self.any_type:
+            try:
+                type_name = parse_topic_key(str(sample.key_expr))[2]
+            except MessageError as err:
+                self.statistics.on_error(gid, size)
+                errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
+                return
+            types = self.publisher_types  # as bounded as the statistics: GIDs are forgeable
+            if gid not in types and len(types) >= self.statistics.max_publishers:
+                del types[next(iter(types))]
+            types[gid] = type_name
+        self.statistics.on_sample(gid, seq, stamp, received, size)
+        info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
+        if self.inline:
+            self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
+            return
+        # A large payload leaves Zenoh on the executor, where its copy is also freed: a buffer made on one thread
+        # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
+        # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
+        payload: bytes | zenoh.ZBytes = zpayload if size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
+        with self._pending_lock:
+            full = len(self._pending) == self._pending.maxlen
+            self._pending.append((payload, info))  # drops the oldest when full; its post serves this one
+            if full:
+                self.queue_overflows += 1
+        if not full:
+            self.node.call_soon(self._dispatch)
+
+    def _dispatch(self) -> None:
+        with self._pending_lock:
+            if not self._pending:
+                return
+            payload, info = self._pending.popleft()
+        self._deliver(payload, info)
+
+    def _deliver(self, payload: bytes | zenoh.ZBytes, info: MessageInfo) -> None:
+        if not isinstance(payload, bytes):
+            payload = payload.to_bytes()
+        message: Any = payload
+        if not self.raw:
+            try:
+                message = typesys.deserialize(payload, info.type_name)
+            except MessageError as err:
+                self.statistics.on_malformed(info.publisher_gid)
+                self.node.error_log.warning(f"{self.topic}:cdr", "%s: dropped a malformed sample: %s", self.topic, err)
+                return
+        try:
+            if self._with_info:
+                self.callback(message, info)
+            else:
+                self.callback(message)
+        except Exception as err:
+            self.statistics.on_error(info.publisher_gid)
+            self.node.error_log.warning(
+                f"{self.topic}:cb", "%s: callback %s raised %s: %s", self.topic, self.callback, type(err).__name__, err
+            )
+
+    def _undeclare(self) -> None:
+        try:
+            self._subscriber.undeclare()
+        except Exception as err:
+            log.debug("subscriber undeclare: %s", err)
