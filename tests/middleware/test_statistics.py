@@ -95,6 +95,32 @@ def test_published_statistics_count_injected_gaps_and_positive_ages(
     assert busiest.delivered_msgs >= 2 and 5_000_000 < ns_from_stamp(busiest.period_mean) < 500_000_000
 
 
+def test_a_forged_sequence_jump_or_stamp_cannot_silence_the_statistics(
+    make_context: Callable[..., Context], raw_session: zenoh.Session
+) -> None:
+    """One sample claiming sequence 2**40 (a 2**40 gap) and one stamped 100 years ahead overflow the message's
+    int32 fields: the report is published with them clamped, and the next windows still come."""
+    listener = Node("listener", context=make_context("r2d2"), statistics_period_s=0.3)
+    reports: list[Any] = []
+    listener.create_subscription("fleetslam_msgs/msg/TopicStatistics", "/statistics", reports.append)
+    listener.create_subscription("std_msgs/msg/String", "/c3po/chatter", lambda m: None)
+    time.sleep(0.3)
+    key = topic_key(0, "/c3po/chatter", "std_msgs/msg/String")
+    payload = serialize(String(data="x"), "std_msgs/msg/String")
+    century_ns = 100 * 365 * 24 * 3600 * 1_000_000_000
+    raw_session.put(key, payload, attachment=encode_attachment(1, time.time_ns(), GID_A))
+    raw_session.put(key, payload, attachment=encode_attachment(2**40, time.time_ns() - century_ns, GID_A))
+
+    def chatter() -> list[Any]:
+        return [r for r in reports if r.topic == "/c3po/chatter"]
+
+    assert wait_until(lambda: sum(r.delivered_msgs for r in chatter()) == 2, timeout_s=5)
+    assert max(r.dropped_msgs for r in chatter()) == 2**31 - 1
+    assert max(ns_from_stamp(r.stamp_age_max) for r in chatter()) > 10 * 365 * 24 * 3600 * 1_000_000_000
+    raw_session.put(key, payload, attachment=encode_attachment(2**40 + 1, time.time_ns(), GID_A))
+    assert wait_until(lambda: sum(r.delivered_msgs for r in chatter()) == 3, timeout_s=5)
+
+
 def test_statistics_name_the_publishing_node_and_can_be_turned_off(make_context: Callable[..., Context]) -> None:
     talker = Node("talker", context=make_context("c3po"), statistics_period_s=0)
     listener = Node("listener", context=make_context(), statistics_period_s=0.2)

@@ -248,6 +248,8 @@ class Node:
             for report in subscription.statistics.close_window(now):
                 publisher = graph.entity_by_gid(report.publisher_gid)
                 node_pub = publisher.node_fq_name if publisher is not None else ""
+                # Forged sequence numbers or stamps can push counts and ages past the message's int32 fields:
+                # clamped, so that one hostile sample cannot silence the node's statistics.
                 msg = stats_type(
                     topic=subscription.topic,
                     type=subscription.publisher_types.get(report.publisher_gid, subscription.type_name),
@@ -258,16 +260,16 @@ class Node:
                     publisher_gid=_gid_array(report.publisher_gid),
                     window_start=typesys.stamp_from_ns(report.window_start_ns),
                     window_stop=typesys.stamp_from_ns(report.window_stop_ns),
-                    delivered_msgs=report.delivered,
-                    dropped_msgs=report.dropped,
-                    error_msgs=report.errors,
+                    delivered_msgs=_int32(report.delivered),
+                    dropped_msgs=_int32(report.dropped),
+                    error_msgs=_int32(report.errors),
                     traffic=report.traffic_bytes,
-                    period_mean=typesys.duration_from_ns(int(report.period_mean_ns)),
-                    period_stddev=typesys.duration_from_ns(int(report.period_stddev_ns)),
-                    period_max=typesys.duration_from_ns(int(report.period_max_ns)),
-                    stamp_age_mean=typesys.duration_from_ns(int(report.age_mean_ns)),
-                    stamp_age_stddev=typesys.duration_from_ns(int(report.age_stddev_ns)),
-                    stamp_age_max=typesys.duration_from_ns(int(report.age_max_ns)),
+                    period_mean=_duration(report.period_mean_ns),
+                    period_stddev=_duration(report.period_stddev_ns),
+                    period_max=_duration(report.period_max_ns),
+                    stamp_age_mean=_duration(report.age_mean_ns),
+                    stamp_age_stddev=_duration(report.age_stddev_ns),
+                    stamp_age_max=_duration(report.age_max_ns),
                 )
                 self._statistics_publisher.publish(msg)
 
@@ -317,3 +319,17 @@ def _gid_array(gid: bytes) -> Any:
     import numpy as np
 
     return np.frombuffer(gid.ljust(16, b"\x00")[:16], dtype=np.uint8).copy()
+
+
+_INT32_MAX = 2**31 - 1
+
+
+def _int32(value: float) -> int:
+    """``value`` as the nearest int32 (the message's counters)."""
+    return max(-_INT32_MAX - 1, min(_INT32_MAX, int(value)))
+
+
+def _duration(ns: float) -> Any:
+    """builtin_interfaces/Duration of ``ns``, clamped to what its int32 seconds can hold."""
+    limit = _INT32_MAX * 1_000_000_000
+    return typesys.duration_from_ns(max(-limit, min(limit, int(ns))))
