@@ -30,6 +30,7 @@ __all__ = [
     "FLEET_MAP_OCTOMAP",
     "FLEET_POSE",
     "FLEET_TOPICS",
+    "FLEET_TRANSFORM",
     "GRAPH",
     "GRAPH_UPDATES",
     "GROUND_TRUTH_ODOM",
@@ -123,6 +124,14 @@ GRAPH_UPDATES = Topic("graph_updates", "fleetslam_msgs/msg/KeyframeGraph", 50,
 KEYFRAME_SUMMARIES = Topic("keyframe_summaries", "fleetslam_msgs/msg/KeyframeSummary", 50,
                            content="every keyframe's features, quantised, no images (~15 kB)",
                            flow="slam → other agents")  # fmt: skip
+FLEET_TRANSFORM = Topic(
+    "slam/fleet_transform",
+    "geometry_msgs/msg/TransformStamped",
+    1,
+    "transient_local",
+    content="fleet → <agent>/map once placed, on change",
+    flow="slam → other agents, fleet map",
+)
 FLEET_POSE = Topic("slam/fleet_pose", "geometry_msgs/msg/PoseStamped", 5,
                    content="camera in the fleet frame, every frame once the agent is placed in it",
                    flow="slam → station, other agents")  # fmt: skip
@@ -151,8 +160,8 @@ CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", 1, content="sim time, when si
 
 AGENT_TOPICS: tuple[Topic, ...] = (
     CMD_VEL, CMD_VEL_STAMPED, ODOM, JOINT_STATES, RGB_IMAGE, DEPTH_IMAGE, CAMERA_INFO, DEPTH_CAMERA_INFO, TF_STATIC,
-    GROUND_TRUTH_ODOM, SLAM_ODOM, FLEET_POSE, PATH, LIVEFRAMES, KEYFRAMES, KEYFRAME_SUMMARIES, GRAPH, GRAPH_UPDATES,
-    SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
+    GROUND_TRUTH_ODOM, SLAM_ODOM, FLEET_POSE, FLEET_TRANSFORM, PATH, LIVEFRAMES, KEYFRAMES, KEYFRAME_SUMMARIES,
+    GRAPH, GRAPH_UPDATES, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
 )  # fmt: skip
 """The topics of one agent, in its namespace."""
 FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, CLOCK)

@@ -85,21 +85,22 @@ def test_agents_without_start_poses_wait_for_the_placement_their_slam_publishes(
     fleet_node = Node("fleet_map", context=make_context())
     fleet = FleetMapNode(fleet_node, FleetMapConfig(resolution=0.1, agents=["c3po", "r2d2"], publish_rate=5.0))
     latched = QoSProfile(durability="transient_local", depth=1)
-    tf = {}
+    placement = {}
     for agent in ("c3po", "r2d2"):
         node = Node("mapping", context=make_context(agent))
         node.create_publisher("octomap_msgs/msg/Octomap", "map/octomap", latched).publish(_agent_map())
-        tf[agent] = node.create_publisher("tf2_msgs/msg/TFMessage", "tf", QoSProfile(depth=10))
+        placement[agent] = node.create_publisher("geometry_msgs/msg/TransformStamped", "slam/fleet_transform", latched)
     assert wait_until(lambda: len(fleet._latest) == 2, 10.0)
     time.sleep(0.5)
     assert fleet.fleet.agents() == []  # neither is placed: nothing lands at the origin
     # The reference agent's SLAM places itself at the fleet origin; r2d2's once its closures agree.
-    assert wait_until(lambda: all(p.matched_subscriptions for p in tf.values()), 10.0)
-    tf["c3po"].publish(transform_msg(np.eye(4), "fleet", "c3po/map", 0))
-    tf["c3po"].publish(transform_msg(np.eye(4), "fleet", "r2d2/map", 0))  # c3po cannot place r2d2: ignored
+    placement["c3po"].publish(transform_msg(np.eye(4), "fleet", "c3po/map", 0).transforms[0])
     assert wait_until(lambda: fleet.fleet.agents() == ["c3po"], 10.0)
+    placement["r2d2"].publish(transform_msg(np.eye(4), "fleet", "c3po/map", 0).transforms[0])  # not r2d2's: ignored
+    time.sleep(0.5)
+    assert fleet.fleet.agents() == ["c3po"]
     r2d2_in_fleet = pose_from_xyz_rpy(10.0, 0.0, 0.0, 0.0, 0.0, np.pi)
-    tf["r2d2"].publish(transform_msg(r2d2_in_fleet, "fleet", "r2d2/map", 0))
+    placement["r2d2"].publish(transform_msg(r2d2_in_fleet, "fleet", "r2d2/map", 0).transforms[0])
     assert wait_until(lambda: fleet.fleet.agents() == ["c3po", "r2d2"], 10.0)
     fleet.fuse_pending()
     fused = fleet.fleet.fused()

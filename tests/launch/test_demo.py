@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from fleetslam.geometry import pose_from_xyz_rpy
 from fleetslam.launch.demo import (
     DemoResult,
     Monitor,
@@ -69,8 +70,11 @@ def test_headless_simulated_demo_produces_every_result(tmp_path: Path) -> None:
     assert "ATE RMSE" in report and "/c3po/camera/rgb/image_raw" in report
     assert "<table>" in (run / "report.html").read_text()
     links = {(r["topic"], r["node_sub"]) for r in json.loads((run / "statistics.json").read_text())}
-    # Each agent subscribes to the other's graph (the seed's cross-agent subscription).
-    assert ("/c3po/graph", "/r2d2/slam") in links and ("/r2d2/graph", "/c3po/slam") in links
+    # Each agent receives the other's keyframe summaries and graph updates (collaborative SLAM), not its images.
+    for me, peer in (("c3po", "r2d2"), ("r2d2", "c3po")):
+        assert (f"/{peer}/keyframe_summaries", f"/{me}/slam") in links, links
+        assert (f"/{peer}/graph_updates", f"/{me}/slam") in links, links
+        assert (f"/{peer}/keyframes", f"/{me}/slam") not in links
 
 
 def _diagnostics(agent: str, values: dict[str, str]) -> Any:
@@ -84,8 +88,8 @@ def _diagnostics(agent: str, values: dict[str, str]) -> Any:
 
 SLAM_VALUES = {"frames_received": "812", "frames_processed": "790", "frames_dropped": "22", "relocalisations": "1",
                "loop_closures": "14", "loops_retracted": "2", "lost_frames": "3", "coasting_frames": "9",
-               "keyframes": "203",
-               "odometry_ms_mean": "11.42", "latency_ms_mean": "20.1"}  # fmt: skip
+               "keyframes": "203", "odometry_ms_mean": "11.42", "latency_ms_mean": "20.1", "peer_keyframes": "150",
+               "peer_closures": "31"}  # fmt: skip
 
 
 def test_report_tables_per_robot_slam_and_per_process(tmp_path: Path) -> None:
@@ -95,14 +99,20 @@ def test_report_tables_per_robot_slam_and_per_process(tmp_path: Path) -> None:
     processes = [ProcessUsage("demo (router, monitor)", 100, 3.0, 100.0, 250.0),
                  ProcessUsage("c3po/mapping", 101, 9.5, 95.0, 410.4, restarts=1),
                  ProcessUsage("sim", None, 0.0, 0.0, 0.0)]  # fmt: skip
+    truth = pose_from_xyz_rpy(4.5, 4.0, 0.0, 0.0, 0.0, np.pi)
+    placed = pose_from_xyz_rpy(0.03, 0.04, 0, 0, 0, 0) @ truth  # 5 cm off
     result = DemoResult(tmp_path, 100.0, [], processes=processes, ate={"c3po": 0.0123, "r2d2": 0.02},
-                        slam={"c3po": values, "r2d2": None})  # fmt: skip
+                        slam={"c3po": values, "r2d2": None},
+                        placements={"c3po": (2.0, np.eye(4)), "r2d2": (31.4, placed)},
+                        true_placements={"c3po": np.eye(4), "r2d2": truth})  # fmt: skip
     write_results(result)
     lines = (tmp_path / "report.md").read_text().splitlines()
     header_row = next(line for line in lines if line.startswith("| robot | frames received"))
-    assert header_row.endswith("| odometry ms (mean) | ATE RMSE (m) |")
-    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 2 | 203 | 3 | 9 | 11.42 | 0.012 |" in lines
-    assert "| r2d2 | — | — | — | — | — | — | — | — | — | — | 0.020 |" in lines  # SLAM never published diagnostics
+    assert header_row.endswith("| odometry ms (mean) | peer keyframes | peer closures | ATE RMSE (m) |")
+    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 2 | 203 | 3 | 9 | 11.42 | 150 | 31 | 0.012 |" in lines
+    assert "| r2d2 | — | — | — | — | — | — | — | — | — | — | — | — | 0.020 |" in lines  # no diagnostics
+    # The fleet frame: when each robot's SLAM placed it, and the placement's error against the true start poses.
+    assert "| c3po | 2 | 0.000 | 0.00 |" in lines and "| r2d2 | 31 | 0.050 | 0.00 |" in lines
     assert "| demo (router, monitor) | 100 | 3.0 | 3.0 | 250 | 0 |" in lines
     assert "| c3po/mapping | 101 | 10.0 | 9.5 | 410 | 1 |" in lines
     assert "| sim | — | 0.0 | 0.0 | 0 | 0 |" in lines  # never started

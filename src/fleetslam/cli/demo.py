@@ -29,6 +29,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--secure", action="store_true",
         help="make a keystore in the results folder; every process joins by mutual TLS under access control",
     )  # fmt: skip
+    parser.add_argument(
+        "--known-starts", action="store_true",
+        help="robots start apart and the fleet map is given their start poses (default: they share a patrol and "
+        "their maps are merged by inter-agent loop closures, no start poses given)",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
@@ -38,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(
         robots=robots, duration_s=args.duration, out_dir=out, port=args.port, router_port=args.router_port,
         headless=args.headless, mode=args.mode, resolution=args.resolution, camera_hz=args.camera_hz,
-        route=args.route, secure=args.secure,
+        route=args.route, secure=args.secure, known_starts=args.known_starts,
     )  # fmt: skip
     for robot, value in sorted(result.ate.items()):
         print(f"ATE {robot}: {value:.3f} m (SLAM vs ground truth, aligned)")

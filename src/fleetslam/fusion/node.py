@@ -1,14 +1,13 @@
 """The fleet map node: every agent's `map/octomap` in, the fused map in the fleet frame out.
 
 Agents are found in the graph (any `/<agent>/map/octomap` publisher) or listed in the parameters. An agent's map
-frame is placed in the fleet frame by its known start pose (``start_poses``, optional), else by the transform the
-agent's SLAM publishes on its ``tf`` once its closures with the fleet agree (``fleet`` → ``<agent>/map``, see
-:mod:`fleetslam.fusion.collaboration`); an agent placed by neither stays out of the fused map (with
-``require_placement``) rather than land at the origin on top of the others. At ``publish_rate`` it takes each
-agent's latest map
-(the maps that came in between are skipped), fuses what changed into the fleet map, and publishes
-``/fleet/map/occupied`` (PointCloud2) and ``/fleet/map/octomap`` if the fleet map changed — each only while someone
-subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
+frame is placed in the fleet frame by its known start pose (``start_poses``, optional), else by the transform its
+SLAM publishes once its closures with the fleet agree (``slam/fleet_transform``, latched: ``fleet`` →
+``<agent>/map``, see :mod:`fleetslam.fusion.collaboration`); an agent placed by neither stays out of the fused map
+(with ``require_placement``) rather than land at the origin on top of the others. At ``publish_rate`` it takes each
+agent's latest map (the maps that came in between are skipped), fuses what changed into the fleet map, and
+publishes ``/fleet/map/occupied`` (PointCloud2) and ``/fleet/map/octomap`` if the fleet map changed — each only
+while someone subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
 """
 
 from __future__ import annotations
@@ -46,9 +45,9 @@ class FleetMapConfig(ConfigModel):
     require_placement: bool = True
     """Leave an agent out of the fused map until it has a start pose or has published its place in the fleet frame
     (False: fuse it at the fleet origin meanwhile)."""
-    placement_tolerance: float = Field(default=0.01, gt=0)
+    placement_tolerance: float = Field(default=0.02, gt=0)
     """A published placement that moved less than this (m, and a tenth of it in radians) is not applied again
-    (applying one re-lands the agent's whole map)."""
+    (applying one re-lands the agent's whole map, and SLAM refines a placement by millimetres with every closure)."""
     agents: list[str] = Field(default_factory=list)
     """Agents to fuse; empty: every agent publishing `map/octomap`."""
     publish_rate: float = Field(default=0.5, gt=0)
@@ -103,23 +102,25 @@ class FleetMapNode:
             octomap.type, octomap.of(agent), partial(self.on_agent_map, agent), octomap.qos(depth=1), raw=True
         )
         if agent not in self.config.start_poses:
+            placement = topics.FLEET_TRANSFORM
             self.node.create_subscription(
-                topics.TF.type, topics.TF.of(agent), partial(self.on_agent_tf, agent), topics.TF.qos(depth=10)
+                placement.type, placement.of(agent), partial(self.on_agent_placement, agent), placement.qos(depth=1)
             )
 
-    def on_agent_tf(self, agent: str, msg: Any) -> None:
-        """An agent's ``fleet → <agent>/map``: its map frame placed in the fleet frame by its SLAM."""
-        for transform in msg.transforms:
-            if transform.header.frame_id != self.config.frame_id or transform.child_frame_id != f"{agent}/map":
-                continue
-            try:
-                pose = transform_matrix(transform.transform)
-            except ValueError:
-                pose = np.full((4, 4), np.nan)
-            if not np.isfinite(pose).all():
-                log.warning("%s: fleet transform is not finite; ignored", agent)
-                continue
-            self._pending_placement[agent] = pose
+    def on_agent_placement(self, agent: str, msg: Any) -> None:
+        """An agent's ``fleet → <agent>/map`` (``slam/fleet_transform``): its map frame placed by its SLAM."""
+        if msg.header.frame_id != self.config.frame_id or msg.child_frame_id != f"{agent}/map":
+            log.warning("%s: placement %s -> %s is not fleet -> %s/map; ignored", agent, msg.header.frame_id,
+                        msg.child_frame_id, agent)  # fmt: skip
+            return
+        try:
+            pose = transform_matrix(msg.transform)
+        except ValueError:
+            pose = np.full((4, 4), np.nan)
+        if not np.isfinite(pose).all():
+            log.warning("%s: placement is not finite; ignored", agent)
+            return
+        self._pending_placement[agent] = pose
 
     def _discover(self) -> None:
         if self.config.agents:

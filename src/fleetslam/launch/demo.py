@@ -49,6 +49,7 @@ from fleetslam.launch.demo_report import (
     plot_trajectories,
     render_html,
     render_markdown,
+    true_placements,
     write_results,
     write_trajectories,
 )
@@ -101,11 +102,14 @@ def run_demo(
     stop: threading.Event | None = None,
     secure: bool = False,
     console_token: str | None = None,
+    known_starts: bool = False,
 ) -> DemoResult:
     """Run the demo until ``duration_s`` passes (None: until Ctrl-C) or ``stop`` is set, then write the results
     to ``out_dir``. With ``secure``, a keystore is made in ``out_dir/keys`` and every process joins the router by
     mutual TLS under its access control (docs/security.md). The console's WebSocket asks for ``console_token``
-    (random when None); its URL, with the token, is printed once the console accepts connections."""
+    (random when None); its URL, with the token, is printed once the console accepts connections. Simulated robots
+    share a patrol and their maps join the fleet map as their SLAM finds them in each other's maps; with
+    ``known_starts`` they start apart and the fleet map is given their start poses instead."""
     stop = stop or threading.Event()
     out_dir.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{router_port}"
@@ -121,7 +125,9 @@ def run_demo(
         print(f"[demo] secured: keystore in {security}, router on {endpoint}", file=output, flush=True)
     if mode == "sim":
         print("[demo] preparing the simulated plant", file=output, flush=True)
-        processes, extrinsics = sim_processes(robots, endpoint, out_dir, resolution, camera_hz, route, security)
+        processes, extrinsics = sim_processes(
+            robots, endpoint, out_dir, resolution, camera_hz, route, security, known_starts=known_starts
+        )
     else:
         processes, extrinsics = agent_processes(robots, endpoint, security), {}
     own_env = fleet_env(endpoint, security, "station")
@@ -184,6 +190,8 @@ def run_demo(
         result.plots.append(plot_trajectories(robots, out_dir))
         diagnostics = monitor.slam_diagnostics()
         result.slam = {robot: diagnostics.get(robot) for robot in robots}
+        result.placements = monitor.placements()
+        result.true_placements = true_placements(out_dir)
     write_results(result)
     return result
 

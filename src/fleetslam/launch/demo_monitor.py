@@ -3,6 +3,7 @@ truth) and latest SLAM diagnostics, and records the key topics."""
 
 from __future__ import annotations
 
+import logging
 import struct
 import threading
 import time
@@ -17,7 +18,18 @@ from fleetslam.geometry import quat_to_matrix
 from fleetslam.middleware import Context, Node
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.topics import GRAPH, GROUND_TRUTH_ODOM, ODOM, SLAM_DIAGNOSTICS, SLAM_ODOM, STATISTICS, Topic
+from fleetslam.topics import (
+    FLEET_TRANSFORM,
+    GRAPH,
+    GROUND_TRUTH_ODOM,
+    ODOM,
+    SLAM_DIAGNOSTICS,
+    SLAM_ODOM,
+    STATISTICS,
+    Topic,
+)
+
+log = logging.getLogger(__name__)
 
 _STAMP = struct.Struct("<iI")
 _LENGTH = struct.Struct("<I")
@@ -92,6 +104,10 @@ class Monitor:
         self.history: list[dict[str, Any]] = []
         self.tracks: dict[str, OdometryTrack] = {f"{r}/{k}": OdometryTrack() for r in robots for k in ("slam", "truth")}
         self._diagnostics: dict[str, bytes] = {}
+        self._started = time.monotonic()
+        self._placements: dict[str, tuple[float, bytes]] = {}
+        """Per robot: when (s after the monitor started) its SLAM first placed it in the fleet frame, and its latest
+        ``slam/fleet_transform``."""
         self.lock = threading.Lock()
         self.writer = BagWriter(recording) if recording is not None else None
         self.node.create_subscription(
@@ -110,6 +126,10 @@ class Monitor:
             self.node.create_subscription(
                 SLAM_DIAGNOSTICS.type, SLAM_DIAGNOSTICS.of(robot), partial(self._on_diagnostics, robot),
                 SLAM_DIAGNOSTICS.qos(depth=1), raw=True,
+            )  # fmt: skip
+            self.node.create_subscription(
+                FLEET_TRANSFORM.type, FLEET_TRANSFORM.of(robot), partial(self._on_placement, robot),
+                FLEET_TRANSFORM.qos(depth=1), raw=True,
             )  # fmt: skip
 
     def _on_statistics(self, data: bytes, info: Any) -> None:
@@ -133,6 +153,27 @@ class Monitor:
     def _on_diagnostics(self, robot: str, data: bytes, info: Any) -> None:
         with self.lock:
             self._diagnostics[robot] = data
+
+    def _on_placement(self, robot: str, data: bytes, info: Any) -> None:
+        with self.lock:
+            first = self._placements.get(robot, (time.monotonic() - self._started, b""))[0]
+            self._placements[robot] = (first, data)
+
+    def placements(self) -> dict[str, tuple[float, NDArray[np.float64]]]:
+        """Per placed robot: seconds after the start when its SLAM placed it in the fleet frame, and its latest
+        ``T_fleet_map``."""
+        from fleetslam.msg.conversions import transform_matrix
+        from fleetslam.msg.typesys import deserialize
+
+        with self.lock:
+            latest = dict(self._placements)
+        out = {}
+        for robot, (first, data) in latest.items():
+            try:
+                out[robot] = (first, transform_matrix(deserialize(data, FLEET_TRANSFORM.type).transform))
+            except Exception as err:  # a malformed one is reported, not fatal to the report
+                log.warning("%s: unreadable fleet transform: %s", robot, err)
+        return out
 
     def trajectories(self) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """Stamps and 4×4 poses per ``<robot>/slam`` and ``<robot>/truth``."""

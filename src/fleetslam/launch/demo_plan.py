@@ -4,6 +4,7 @@ plant; ``mode="synthetic"``: the example agents), and where the simulated robots
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from pathlib import Path
@@ -13,6 +14,11 @@ from fleetslam.launch.description import ProcessSpec, RestartPolicy
 
 #: Where each demo robot drives (centre of its circle), so the two agents' maps sit side by side.
 ROBOT_CENTERS = [(0.0, 0.0), (8.0, 0.0), (0.0, 8.0), (8.0, 8.0)]
+
+#: Where the simulated demo robots start (x, y, yaw in the plant): both in the west hall, on patrols that cover the
+#: same ground half a lap apart, so that each sees what the other mapped and their SLAM finds them in each other's
+#: maps (no start pose is given to the fleet). Robots not listed start where the simulator places them.
+SHARED_PATROL_STARTS = {"c3po": (-12.0, -7.5, 0.0), "r2d2": (-7.5, -3.5, math.pi)}
 
 
 def fleet_env(router: str, security: Path | None, identity: str | None = None) -> dict[str, str]:
@@ -54,7 +60,22 @@ def fleetslam_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "fleetslam.cli.main", *args]
 
 
-def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, Any]]:
+def sim_config(robots: list[str], *, shared_patrol: bool = True) -> Any:
+    """The simulator's configuration for the demo: with ``shared_patrol``, the robots of
+    :data:`SHARED_PATROL_STARTS` start there; the others (and all without it) where the simulator places them."""
+    from fleetslam.sim.config import RobotPlacement, SimConfig
+
+    config = SimConfig()
+    if not shared_patrol:
+        return config
+    placements = {p.name: p for p in config.robots}
+    for name, (x, y, yaw) in SHARED_PATROL_STARTS.items():
+        if name in robots:
+            placements[name] = RobotPlacement(name=name, x=x, y=y, yaw=yaw)
+    return config.model_copy(update={"robots": list(placements.values())})
+
+
+def start_poses(robots: list[str], config: Any = None) -> tuple[dict[str, list[float]], dict[str, Any]]:
     """Each robot's camera pose at start in the world, [x, y, z, roll, pitch, yaw] (where its SLAM map sits),
     and its camera extrinsics T_base_link_optical (to compare SLAM camera poses with base ground truth)."""
     from scipy.spatial.transform import Rotation
@@ -62,7 +83,7 @@ def start_poses(robots: list[str]) -> tuple[dict[str, list[float]], dict[str, An
     from fleetslam.sim.config import SimConfig
     from fleetslam.sim.plant import Plant
 
-    config = SimConfig()
+    config = config if config is not None else SimConfig()
     placements = [p for p in config.robots if p.name in robots]
     poses = {}
     extrinsics = {}
@@ -99,7 +120,13 @@ def sim_processes(
     camera_hz: float = 10.0,
     route: str = "loop",
     security: Path | None = None,
+    known_starts: bool = False,
 ) -> tuple[list[ProcessSpec], dict[str, Any]]:
+    """The simulated fleet's processes. Without ``known_starts`` the robots share a patrol
+    (:data:`SHARED_PATROL_STARTS`) and the fleet map is given no start poses: each robot's map joins the fleet map
+    when its SLAM has placed it by inter-agent closures. With it, the robots start apart where the simulator places
+    them and the fleet map places their maps by their true start poses. The true start poses are written to
+    ``start_poses.yaml`` either way, for the report only (the ground truth's frame)."""
     env = fleet_env(router, security)
     # The fleet map and the simulator (every robot's sensors, /clock) act for the whole fleet: the station's identity.
     station_env = fleet_env(router, security, "station")
@@ -120,16 +147,23 @@ def sim_processes(
     fleet_config = out_dir / "fleet_map.yaml"
     import yaml
 
-    poses, extrinsics = start_poses(robots)
-    fleet_config.write_text(
-        yaml.safe_dump({"start_poses": poses, "agents": robots, "maps_dir": str((out_dir / "maps").resolve())})
+    plant_config = sim_config(robots, shared_patrol=not known_starts)
+    (out_dir / "sim.yaml").write_text(yaml.safe_dump(plant_config.model_dump(mode="json")))
+    poses, extrinsics = start_poses(robots, plant_config)
+    (out_dir / "start_poses.yaml").write_text(
+        yaml.safe_dump({"start_poses": poses, "fleet_frame_of": None if known_starts else min(robots)})
     )
+    fleet_settings: dict[str, Any] = {"agents": robots, "maps_dir": str((out_dir / "maps").resolve())}
+    if known_starts:
+        fleet_settings["start_poses"] = poses
+    fleet_config.write_text(yaml.safe_dump(fleet_settings))
     processes.append(ProcessSpec(label="fleet_map", host="localhost",
                                  argv=fleetslam_argv("fleet", "node", "--config", str(fleet_config)),
                                  environment={**station_env, **ONE_NUMBA_THREAD}, restart=RestartPolicy(),
                                  niceness=MAP_NICENESS))  # fmt: skip
     processes.append(ProcessSpec(label="sim", host="localhost",
-                                 argv=fleetslam_argv("sim", "run", "--robots", ",".join(robots), "--camera-hz",
+                                 argv=fleetslam_argv("sim", "run", "--config", str(out_dir / "sim.yaml"),
+                                                 "--robots", ",".join(robots), "--camera-hz",
                                                  f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
                                                  "--laps"),
                                  environment={**station_env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},

@@ -37,6 +37,10 @@ class DemoResult:
     """CPU and peak memory of every process over the run, the demo's own first."""
     slam: dict[str, dict[str, str] | None] = field(default_factory=dict)
     """Per robot, the values of its latest SLAM diagnostics (None: it never published any)."""
+    placements: dict[str, tuple[float, Any]] = field(default_factory=dict)
+    """Per robot its SLAM placed in the fleet frame: seconds after the start, and its latest ``T_fleet_map``."""
+    true_placements: dict[str, Any] = field(default_factory=dict)
+    """Per robot, the true ``T_fleet_map`` (from the simulator's start poses; evaluation only)."""
 
     def per_agent(self) -> dict[str, dict[str, float]]:
         totals: dict[str, dict[str, float]] = {}
@@ -90,6 +94,7 @@ SLAM_COLUMNS = (
     ("relocalisations", "relocalisations"), ("loop closures", "loop_closures"),
     ("loops retracted", "loops_retracted"), ("keyframes", "keyframes"),
     ("lost frames", "lost_frames"), ("coasting frames", "coasting_frames"), ("odometry ms (mean)", "odometry_ms_mean"),
+    ("peer keyframes", "peer_keyframes"), ("peer closures", "peer_closures"),
 )  # fmt: skip
 MISSING = "—"
 STYLE = (
@@ -164,12 +169,54 @@ def agents_section(result: DemoResult) -> Section:
     return Section("Per agent", table)
 
 
+def true_placements(out_dir: Path) -> dict[str, Any]:
+    """Per robot, its true ``T_fleet_map`` from ``start_poses.yaml`` (the simulator's start poses, written for the
+    evaluation only) when the fleet frame is a robot's map frame; empty otherwise."""
+    import yaml
+
+    from fleetslam.geometry import invert, pose_from_xyz_rpy
+
+    path = out_dir / "start_poses.yaml"
+    settings = yaml.safe_load(path.read_text()) if path.is_file() else {}
+    starts = {robot: pose_from_xyz_rpy(*pose) for robot, pose in (settings.get("start_poses") or {}).items()}
+    reference = settings.get("fleet_frame_of")
+    if reference not in starts:
+        return {}
+    return {robot: invert(starts[reference]) @ start for robot, start in starts.items()}
+
+
+def fleet_section(result: DemoResult) -> Section | None:
+    """When each robot's SLAM placed its map in the fleet frame (no start poses given), and how far that placement
+    is from the truth (None when no robot was placed by its SLAM)."""
+    if not result.placements:
+        return None
+    from fleetslam.geometry import invert, rotation_angle
+
+    table = Table(("robot", "placed after (s)", "error (m)", "error (deg)"), (False, True, True, True))
+    robots = sorted(set(result.placements) | set(result.true_placements))
+    for robot in robots:
+        if robot not in result.placements:
+            table.rows.append([robot, "not placed", MISSING, MISSING])
+            continue
+        seconds, placed = result.placements[robot]
+        truth = result.true_placements.get(robot)
+        if truth is None:
+            table.rows.append([robot, f"{seconds:.0f}", MISSING, MISSING])
+            continue
+        error = invert(truth) @ placed
+        table.rows.append([robot, f"{seconds:.0f}", f"{np.linalg.norm(error[:3, 3]):.3f}",
+                           f"{np.degrees(rotation_angle(error)):.2f}"])  # fmt: skip
+    text = ("Each robot's map frame placed in the fleet frame (the reference robot's map) by its SLAM from inter-agent "
+            "loop closures, with no start pose given; error against the simulator's true start poses.")  # fmt: skip
+    return Section("Fleet frame", table, text)
+
+
 def build_report(result: DemoResult, figures: Sequence[Path | None] = ()) -> Report:
     """The report of a run: its tables (maps read from ``out_dir/maps/*.bt``) and ``figures`` (None: left out)."""
     maps_dir = result.out_dir / "maps"
     maps = sorted(maps_dir.glob("*.bt")) if maps_dir.is_dir() else []
-    sections = [maps_section(maps), slam_section(result.slam, result.ate), process_section(result.processes),
-                agents_section(result)]  # fmt: skip
+    sections = [maps_section(maps), slam_section(result.slam, result.ate), fleet_section(result),
+                process_section(result.processes), agents_section(result)]  # fmt: skip
     return Report(
         title="fleetslam demo report",
         intro=f"Run of {result.duration_s:.0f} s. Latest statistics window per topic and subscriber:",
@@ -258,12 +305,19 @@ def plot_trajectories(robots: list[str], out_dir: Path) -> Path | None:
     except ImportError:
         return None
     fig, ax = plt.subplots(figsize=(9, 6.5), dpi=110)
+    # The true start poses (evaluation only: the fleet was not given them without known starts) put the SLAM
+    # trajectories and the fleet map in the ground truth's frame; the fleet frame is then the reference agent's map.
+    evaluation = out_dir / "start_poses.yaml"
+    settings = yaml.safe_load(evaluation.read_text()) if evaluation.is_file() else {}
+    starts = settings.get("start_poses", {})
+    reference = settings.get("fleet_frame_of")
+    fleet_in_world = pose_from_xyz_rpy(*starts[reference]) if reference in starts else np.eye(4)
     fleet_map = out_dir / "maps" / "fleet.bt"
     if fleet_map.is_file():
         centres, _ = OccupancyOctree.read(fleet_map).occupied_centers()
+        centres = centres @ fleet_in_world[:3, :3].T + fleet_in_world[:3, 3]
         band = centres[(centres[:, 2] > 0.1) & (centres[:, 2] < 1.5)]
         ax.scatter(band[:, 0], band[:, 1], s=0.3, c="0.6", label="fleet map (occupied, 0.1–1.5 m)")
-    starts = yaml.safe_load((out_dir / "fleet_map.yaml").read_text()).get("start_poses", {})
     for robot in robots:
         truth, slam = out_dir / "ground_truth" / f"{robot}.txt", out_dir / "trajectories" / f"{robot}.txt"
         if not truth.is_file() or not slam.is_file():

@@ -39,7 +39,7 @@ from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_from_message
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields, summary_from_message
-from fleetslam.geometry import invert
+from fleetslam.geometry import invert, rotation_angle
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import (
     depth_from_image,
@@ -108,6 +108,9 @@ class SlamNodeConfig(ConfigModel):
     """The agent whose map frame is the fleet frame; empty: the alphabetically first of this agent and its peers."""
     fleet_frame: str = "fleet"
     """Parent frame of the published ``fleet → <agent>/map`` transform and of ``slam/fleet_pose``."""
+    fleet_transform_change: float = Field(default=0.02, gt=0.0)
+    """``slam/fleet_transform`` is published again when the placement moved more than this (m; a tenth of it in
+    radians): each publication makes the fleet map re-land this agent's whole map."""
 
 
 def _graph_update(msg: Any) -> GraphUpdate[Any]:
@@ -177,6 +180,7 @@ class SlamNode:
         self.graph_updates_pub = publisher(topics.GRAPH_UPDATES)
         self.summary_pub = publisher(topics.KEYFRAME_SUMMARIES)
         self.fleet_pose_pub = publisher(topics.FLEET_POSE)
+        self.fleet_transform_pub = publisher(topics.FLEET_TRANSFORM)
         self.diagnostics_pub = publisher(topics.SLAM_DIAGNOSTICS)
         # The frame queue drops stale frames itself (and counts them); the subscriptions only bridge a busy moment.
         pending = self.config.max_pending
@@ -208,7 +212,8 @@ class SlamNode:
             subscribe(topics.KEYFRAME_SUMMARIES, partial(self.on_peer_summary, peer), 50,
                       topics.KEYFRAME_SUMMARIES.of(peer))  # fmt: skip
             subscribe(topics.GRAPH_UPDATES, partial(self.on_peer_graph_update, peer), 50, topics.GRAPH_UPDATES.of(peer))
-            subscribe(topics.TF, partial(self.on_peer_tf, peer), 10, topics.TF.of(peer))
+            subscribe(topics.FLEET_TRANSFORM, partial(self.on_peer_fleet_transform, peer), 1,
+                      topics.FLEET_TRANSFORM.of(peer))  # fmt: skip
             self._graph_clients[peer] = node.create_client("fleetslam_msgs/srv/GetGraph", f"/{peer}/graph/full")
         node.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", self.on_full_graph)
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
@@ -337,16 +342,16 @@ class SlamNode:
 
         threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{peer}", daemon=True).start()
 
-    def on_peer_tf(self, peer: str, msg: Any) -> None:
-        """A peer's ``fleet → <peer>/map``, once it is placed in the fleet frame."""
-        for transform in msg.transforms:
-            if (transform.header.frame_id == self.config.fleet_frame
-                    and transform.child_frame_id == f"{peer}/{self.config.map_frame}"):  # fmt: skip
-                pose = _valid_pose(partial(transform_matrix, transform.transform))
-                if pose is None:
-                    self._bad_peer_message(peer, "fleet transform", "not finite or not a rotation")
-                else:
-                    self.peers_in_fleet[peer] = pose
+    def on_peer_fleet_transform(self, peer: str, msg: Any) -> None:
+        """A peer's ``fleet → <peer>/map`` (latched ``slam/fleet_transform``), once it is placed in the fleet frame."""
+        if msg.header.frame_id != self.config.fleet_frame or msg.child_frame_id != f"{peer}/{self.config.map_frame}":
+            self._bad_peer_message(peer, "fleet transform", f"{msg.header.frame_id} -> {msg.child_frame_id}")
+            return
+        pose = _valid_pose(partial(transform_matrix, msg.transform))
+        if pose is None:
+            self._bad_peer_message(peer, "fleet transform", "not finite or not a rotation")
+        else:
+            self.peers_in_fleet[peer] = pose
 
     # -- work ---------------------------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -438,12 +443,21 @@ class SlamNode:
             header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(transform @ step.pose)
         )
         self.fleet_pose_pub.publish(fleet_pose)
+        # The placement is refined with every closure by millimetres: it goes out when it moved by more than
+        # ``fleet_transform_change`` (the fleet map re-lands the agent's whole map on each), on tf once a second.
         now = time.monotonic()
         last, sent = self._fleet_published
-        if now - last >= 1.0 or not np.allclose(sent, transform, atol=1e-4):
-            self._fleet_published = (now, transform)
-            child = f"{self.agent}/{self.config.map_frame}"
-            self.tf_pub.publish(transform_msg(transform, self.config.fleet_frame, child, stamp_ns))
+        child = f"{self.agent}/{self.config.map_frame}"
+        moved = invert(sent) @ transform if np.isfinite(sent).all() and sent[3, 3] == 1.0 else None
+        change = self.config.fleet_transform_change
+        if moved is None or np.linalg.norm(moved[:3, 3]) > change or rotation_angle(moved) > change / 10.0:
+            tf = transform_msg(transform, self.config.fleet_frame, child, stamp_ns)
+            self.fleet_transform_pub.publish(tf.transforms[0])
+            self._fleet_published = (last, transform)
+            sent = transform
+        if now - last >= 1.0:
+            self._fleet_published = (now, sent)
+            self.tf_pub.publish(transform_msg(sent, self.config.fleet_frame, child, stamp_ns))
 
     def _count(self, step: StepResult) -> None:
         odometry = step.odometry
