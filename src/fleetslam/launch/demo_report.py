@@ -170,19 +170,34 @@ def agents_section(result: DemoResult) -> Section:
 
 
 def true_placements(out_dir: Path) -> dict[str, Any]:
-    """Per robot, its true ``T_fleet_map`` from ``start_poses.yaml`` (the simulator's start poses, written for the
-    evaluation only) when the fleet frame is a robot's map frame; empty otherwise."""
+    """Per robot, the true ``T_fleet_map`` when the fleet frame is a robot's map frame (``start_poses.yaml`` names
+    it): each robot's map frame in the world is where its SLAM trajectory fits its ground truth best (rigidly, by
+    position, from ``trajectories/`` and ``ground_truth/``), so a map frame that began after the robot set off is
+    placed right. Empty without a reference robot or trajectories (evaluation only)."""
     import yaml
 
-    from fleetslam.geometry import invert, pose_from_xyz_rpy
+    from fleetslam.fusion.alignment import rigid_fit
+    from fleetslam.geometry import invert
+    from fleetslam.trajectory import NearestPose, read_tum
 
     path = out_dir / "start_poses.yaml"
     settings = yaml.safe_load(path.read_text()) if path.is_file() else {}
-    starts = {robot: pose_from_xyz_rpy(*pose) for robot, pose in (settings.get("start_poses") or {}).items()}
     reference = settings.get("fleet_frame_of")
-    if reference not in starts:
+    world_from_map: dict[str, Any] = {}
+    for robot in settings.get("start_poses") or {}:
+        slam_file, truth_file = out_dir / "trajectories" / f"{robot}.txt", out_dir / "ground_truth" / f"{robot}.txt"
+        if not slam_file.is_file() or not truth_file.is_file():
+            continue
+        slam, truth = read_tum(slam_file), read_tum(truth_file)
+        nearest = NearestPose(truth, 0.05)
+        pairs = [(pose[:3, 3], nearest(stamp)) for stamp, pose in zip(slam.stamps, slam.poses, strict=True)]
+        estimated = np.array([p for p, t in pairs if t is not None])
+        true = np.array([t[:3, 3] for _, t in pairs if t is not None])
+        if len(estimated) >= 3:
+            world_from_map[robot] = rigid_fit(estimated, true)
+    if reference not in world_from_map:
         return {}
-    return {robot: invert(starts[reference]) @ start for robot, start in starts.items()}
+    return {robot: invert(world_from_map[reference]) @ pose for robot, pose in world_from_map.items()}
 
 
 def fleet_section(result: DemoResult) -> Section | None:
@@ -207,7 +222,8 @@ def fleet_section(result: DemoResult) -> Section | None:
         table.rows.append([robot, f"{seconds:.0f}", f"{np.linalg.norm(error[:3, 3]):.3f}",
                            f"{np.degrees(rotation_angle(error)):.2f}"])  # fmt: skip
     text = ("Each robot's map frame placed in the fleet frame (the reference robot's map) by its SLAM from inter-agent "
-            "loop closures, with no start pose given; error against the simulator's true start poses.")  # fmt: skip
+            "loop closures, with no start pose given; error against the truth (each map frame where its SLAM "
+            "trajectory fits the ground truth best).")  # fmt: skip
     return Section("Fleet frame", table, text)
 
 
@@ -252,11 +268,18 @@ def render_html(report: Report) -> str:
 
 
 def write_results(result: DemoResult) -> None:
-    """statistics.json, processes.json, slam.json, report.md/report.html and the plots in the output folder."""
+    """statistics.json, processes.json, slam.json, fleet_frame.json (when robots were placed by their SLAM),
+    report.md/report.html and the plots in the output folder."""
     out = result.out_dir
     (out / "statistics.json").write_text(json.dumps([r.as_dict() for r in result.rows], indent=1))
     (out / "processes.json").write_text(json.dumps([p.as_dict() for p in result.processes], indent=1))
     (out / "slam.json").write_text(json.dumps(result.slam, indent=1))
+    if result.placements:
+        placed = {robot: {"placed_after_s": round(seconds, 1), "T_fleet_map": np.asarray(pose).tolist(),
+                          "true_T_fleet_map": (np.asarray(result.true_placements[robot]).tolist()
+                                               if robot in result.true_placements else None)}
+                  for robot, (seconds, pose) in result.placements.items()}  # fmt: skip
+        (out / "fleet_frame.json").write_text(json.dumps(placed, indent=1))
     report = build_report(result, [*result.plots, plot_bandwidth(result)])
     (out / "report.md").write_text(render_markdown(report))
     (out / "report.html").write_text(render_html(report))
