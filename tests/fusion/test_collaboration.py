@@ -7,6 +7,7 @@ import numpy as np
 
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker
+from fleetslam.fusion.consistency import PairClosure
 from fleetslam.fusion.keyframe_summary import summarize
 from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle
 from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
@@ -68,3 +69,16 @@ def test_a_flooding_peer_cannot_grow_the_queue() -> None:
     for _ in range(50):
         linker.queue_summary(summary)
     assert len(linker.queue) == 5 and linker.dropped == 45
+
+
+def test_a_restarted_peer_loses_its_closures_and_queued_keyframes() -> None:
+    linker = InterAgentLinker("c3po")
+    empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8))
+    linker.queue_summary(summarize("r2d2", 1, 0, np.eye(4), CAMERA, *empty, epoch=11))
+    state = linker.peer("r2d2")
+    state.closures.add(PairClosure(1, 1, np.eye(4), np.eye(4), np.eye(4)))
+    assert len(state.closures.closures) == 1 and state.epoch == 11
+    linker.queue_summary(summarize("r2d2", 1, 0, np.eye(4), CAMERA, *empty, epoch=12))  # r2d2 restarted
+    state = linker.peer("r2d2")
+    assert state.restarts == 1 and state.epoch == 12 and state.closures.closures == []
+    assert [s.epoch for s in linker.queue] == [12]

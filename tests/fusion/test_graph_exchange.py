@@ -85,7 +85,7 @@ def test_a_late_reader_starts_from_a_full_graph() -> None:
     assert late.apply(writer.full(poses, stamps, constraints))
     assert_same(late, poses, constraints)
     # An old full graph after newer deltas is ignored.
-    stale = GraphUpdate(1, True, {}, {}, [])
+    stale = GraphUpdate(1, True, {}, {}, [], writer.epoch)
     assert late.apply(stale) and len(late.poses) == len(poses)
 
 
@@ -98,3 +98,21 @@ def test_a_restarted_writer_graph_is_sent_whole() -> None:
     grow(poses, stamps, constraints, 1)
     update = writer.update(poses, stamps, constraints)
     assert update is not None and update.full and sorted(update.poses) == [0]
+
+
+def test_a_restarted_writer_is_a_new_epoch_and_the_mirror_starts_over() -> None:
+    writer: GraphDeltaWriter = GraphDeltaWriter()
+    mirror: GraphMirror = GraphMirror()
+    poses, stamps, constraints = {}, {}, []
+    for _ in range(5):
+        grow(poses, stamps, constraints, 2)
+        assert mirror.apply(writer.update(poses, stamps, constraints))
+    restarted: GraphDeltaWriter = GraphDeltaWriter()  # the agent's SLAM started again: a new map frame
+    assert restarted.epoch != writer.epoch
+    poses, stamps, constraints = {}, {}, []
+    grow(poses, stamps, constraints, 3)
+    update = restarted.update(poses, stamps, constraints)
+    assert update is not None and update.sequence == 1  # would read as an old duplicate without the epoch
+    assert mirror.apply(update)
+    assert mirror.epoch == restarted.epoch
+    assert_same(mirror, poses, constraints)

@@ -45,7 +45,7 @@ def test_a_summary_keeps_features_with_depth_spread_over_the_image_and_fits_20_k
     rng = np.random.default_rng(1)
     keypoints, points, descriptors = keyframe_features(rng)
     pose = random_pose(rng)
-    summary = summarize("c3po", 12, 5, pose, INTRINSICS, keypoints, points, descriptors, max_features=400)
+    summary = summarize("c3po", 12, 5, pose, INTRINSICS, keypoints, points, descriptors, max_features=400, epoch=77)
     assert len(summary) == 400
     assert np.isfinite(summary.depth).all()
     # Spread: every cell of a 4x4 grid keeps a fair share of the 400.
@@ -57,6 +57,7 @@ def test_a_summary_keeps_features_with_depth_spread_over_the_image_and_fits_20_k
     np.testing.assert_array_equal(back.keypoints, summary.keypoints)
     np.testing.assert_allclose(back.depth, summary.depth, atol=1e-6)
     np.testing.assert_array_equal(back.descriptors, summary.descriptors)
+    assert back.epoch == 77
     assert back.intrinsics == INTRINSICS
     # The 3D points are the originals within the quantisation: 1/16 px and half a millimetre.
     original = {tuple(d): p for d, p in zip(descriptors.tolist(), points, strict=True)}

@@ -1,5 +1,6 @@
 """Two SLAM nodes over a real router, no start poses: each recognises the other's keyframes (sent as summaries),
-the graphs travel as deltas, and the second agent places its map frame in the fleet frame (the first one's)."""
+the graphs travel as deltas, and the second agent places its map frame in the fleet frame (the first one's); when it
+restarts mid-run (a new map frame), the first drops their closures and it is placed again."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from fleetslam.drivers.node import CameraNode
 from fleetslam.geometry import invert, pose_from_planar, rotation_angle
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.msg.conversions import pose_matrix, transform_matrix
-from fleetslam.msg.typesys import ns_from_stamp
+from fleetslam.msg.typesys import get_type, ns_from_stamp
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
 from fleetslam.slam.pipeline import SlamPipeline
@@ -25,12 +26,31 @@ from ..support import wait_until
 INTRINSICS = Intrinsics(262.5, 262.5, 159.5, 119.5, 320, 240)
 
 
+def world_from_map(
+    truth: dict[str, list[np.ndarray]],
+    frames: dict[str, list[RGBDFrame]],
+    poses: dict[str, dict[int, np.ndarray]],
+    agent: str,
+) -> np.ndarray:
+    """An agent's map frame in the world, from its first tracked pose (SLAM's map frame is where it started)."""
+    stamp_index = {round(f.stamp * 1e9): f.index for f in frames[agent]}
+    stamp = min(poses[agent])
+    return truth[agent][stamp_index[stamp]] @ invert(poses[agent][stamp])
+
+
+def assert_close(estimate: np.ndarray | None, expected: np.ndarray) -> None:
+    assert estimate is not None
+    error = invert(expected) @ estimate
+    assert np.linalg.norm(error[:3, 3]) < 0.05, error[:3, 3]
+    assert np.degrees(rotation_angle(error)) < 1.0
+
+
 def drive(x0: float, x1: float, y: float, count: int) -> list[np.ndarray]:
     """Camera poses of a robot driving along x (its camera looking along +x at the room's far wall)."""
     return [pose_from_planar(x0 + (x1 - x0) * k / (count - 1), y, 0.0) @ BASE_CAMERA for k in range(count)]
 
 
-def test_two_agents_find_each_other_and_the_second_is_placed_in_the_fleet_frame(
+def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_restart(
     make_context: Callable[..., Context],
 ) -> None:
     textures = make_textures(np.random.default_rng(5))
@@ -82,25 +102,47 @@ def test_two_agents_find_each_other_and_the_second_is_placed_in_the_fleet_frame(
         ), 10.0)  # fmt: skip
         for camera, _ in cameras.values():
             camera.close()
+        first_run = {agent: dict(agent_poses) for agent, agent_poses in poses.items()}
+        (published,) = [t for m in fleet_tf for t in m.transforms if t.child_frame_id == "r2d2/map"][-1:]
+        expected = invert(world_from_map(truth, frames, first_run, "c3po")) @ world_from_map(
+            truth, frames, first_run, "r2d2"
+        )
+        for estimate in (slam["r2d2"].fleet_transform, transform_matrix(published.transform)):
+            assert_close(estimate, expected)
 
-    # The truth: each agent's map frame in the world, from its own first pose.
-    def world_from_map(agent: str) -> np.ndarray:
-        stamp_index = {round(f.stamp * 1e9): f.index for f in frames[agent]}
-        stamp = min(poses[agent])
-        return truth[agent][stamp_index[stamp]] @ invert(poses[agent][stamp])
-
-    expected = invert(world_from_map("c3po")) @ world_from_map("r2d2")
-    (published,) = [t for m in fleet_tf for t in m.transforms if t.child_frame_id == "r2d2/map"][-1:]
-    for estimate in (slam["r2d2"].fleet_transform, transform_matrix(published.transform)):
-        error = invert(expected) @ estimate
-        assert np.linalg.norm(error[:3, 3]) < 0.05, error[:3, 3]
-        assert np.degrees(rotation_angle(error)) < 1.0
+        # r2d2 restarts (a new map frame, a new graph epoch): c3po drops its closures with r2d2, and r2d2 is placed
+        # again by new ones as both drive on.
+        keyframes_before = slam["r2d2"].counts["keyframes"]
+        reset = listener.create_client("std_srvs/srv/Trigger", "/r2d2/slam/reset")
+        assert reset.call(get_type("std_srvs/srv/Trigger_Request")(), timeout=10.0).success
+        assert slam["r2d2"].fleet_transform is None
+        again = {agent: [RGBDFrame(f.index, f.stamp + 100.0, f.rgb, f.depth) for f in frames[agent]] for agent in truth}
+        for agent in truth:
+            poses[agent].clear()
+            driver = FrameListCamera(
+                INTRINSICS, again[agent], rate=5.0, ready=lambda i, a=agent: len(poses[a]) >= i - 1
+            )
+            cameras[agent] = (CameraNode(Node("camera2", context=make_context(), namespace=f"/{agent}"), driver,
+                                         base_camera=BASE_CAMERA), driver)  # fmt: skip
+            cameras[agent][0].start()
+            driver.go.set()
+        for camera, _ in cameras.values():
+            assert camera.join(60.0)
+        assert wait_until(lambda: slam["r2d2"].fleet_transform is not None, 20.0), slam["r2d2"].counts
+        assert slam["c3po"].linker.peers["r2d2"].restarts == 1
+        for camera, _ in cameras.values():
+            camera.close()
+        expected = invert(world_from_map(truth, frames, first_run, "c3po")) @ world_from_map(
+            truth, again, poses, "r2d2"
+        )
+        assert_close(slam["r2d2"].fleet_transform, expected)
     assert fleet_poses[-1].header.frame_id == "fleet"
     # Summaries, not images, on the wire; the peers' graphs mirrored from deltas.
     assert summary_bytes and max(summary_bytes) <= 20_000
     mirror = slam["c3po"].linker.peers["r2d2"].mirror
     writer = slam["r2d2"].graph_writer
     assert mirror.synced and mirror.sequence == writer.sequence and len(mirror.poses) == writer.sent_keyframes
-    assert writer.sent_keyframes >= slam["r2d2"].counts["keyframes"] - 1  # the newest may wait for graph_period
+    keyframes = slam["r2d2"].counts["keyframes"] - keyframes_before  # since the restart
+    assert writer.sent_keyframes >= keyframes - 1  # the newest may wait for graph_period
     assert slam["c3po"].counts["bad_peer_messages"] == slam["r2d2"].counts["bad_peer_messages"] == 0
-    assert slam["r2d2"].counts["peer_closures"] >= 3
+    assert slam["r2d2"].counts["peer_closures"] >= 6  # three before the restart, three after, at least

@@ -76,6 +76,10 @@ class PeerState:
     """Peer keyframes verified against this agent's memory."""
     recognised: int = 0
     """Peer keyframes tried."""
+    epoch: int = 0
+    """The peer's SLAM run these closures belong to (0: not known yet)."""
+    restarts: int = 0
+    """Times the peer was seen to restart (a new epoch: its map frame is new, its closures were dropped)."""
 
 
 class InterAgentLinker:
@@ -111,10 +115,29 @@ class InterAgentLinker:
             state = self.peers[agent] = PeerState(closures=closures)
         return state
 
+    def _observe_epoch(self, agent: str, epoch: int) -> None:
+        """A peer's run changed (it restarted): its map frame is new, so the closures with it and its queued keyframes
+        no longer hold."""
+        state = self.peer(agent)
+        if epoch == state.epoch or epoch == 0:
+            return
+        if state.epoch != 0:
+            state.restarts += 1
+            state.closures = ClosureSet(
+                tolerance=state.closures.tolerance, min_inliers=state.closures.min_inliers,
+                min_places=state.closures.min_places, place_spacing_m=state.closures.place_spacing_m,
+                dominance=state.closures.dominance, max_closures=state.closures.max_closures,
+            )  # fmt: skip
+            state.decision = None
+            with self._queue_lock:
+                self.queue = deque(s for s in self.queue if s.agent != agent or s.epoch == epoch)
+        state.epoch = epoch
+
     def queue_summary(self, summary: KeyframeSummary) -> None:
         """A peer keyframe to recognise when there is time (this agent's own summaries are ignored)."""
         if summary.agent == self.agent:
             return
+        self._observe_epoch(summary.agent, summary.epoch)
         with self._queue_lock:
             self.queue.append(summary)
             while len(self.queue) > self.config.max_queued:
@@ -123,6 +146,7 @@ class InterAgentLinker:
 
     def apply_graph(self, agent: str, update: GraphUpdate[object]) -> bool:
         """Apply a peer's graph update; False when the peer's full graph should be requested."""
+        self._observe_epoch(agent, update.epoch)
         return self.peer(agent).mirror.apply(update)
 
     def step(self, recognizer: PeerPlaceRecognizer, own_camera_poses: Mapping[int, Pose]) -> list[PeerMatch]:
@@ -136,6 +160,8 @@ class InterAgentLinker:
                     break
                 summary = self.queue.popleft()
             state = self.peer(summary.agent)
+            if summary.epoch != state.epoch:
+                continue  # from a run of the peer that has since restarted
             state.recognised += 1
             result = recognizer.recognize(summary)
             match = result.match

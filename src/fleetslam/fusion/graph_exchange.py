@@ -8,12 +8,16 @@ update carries a sequence number; :class:`GraphMirror` applies them in order and
 that dropped messages, a reader that joined late), says so: the reader then asks for the full graph (a service),
 which the writer builds on request without disturbing the stream.
 
+A writer's ``epoch`` (random, one per SLAM run) tells a restarted agent from one that only skipped numbers: a
+reader seeing a new epoch drops what it had of that agent, whose map frame is a new one.
+
 Pure: no middleware. Poses are 4×4 ``T_map_camera``; constraints are opaque values the caller defines (compared by
 identity of their position in the list the writer is given).
 """
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
@@ -42,6 +46,8 @@ class GraphUpdate(Generic[ConstraintT]):
     """Keyframe id -> stamp (s) of the keyframes in ``poses``."""
     constraints: list[ConstraintT]
     """Constraints added since the previous update (every constraint when ``full``)."""
+    epoch: int = 0
+    """The writer's run (see the module docstring)."""
 
     def __bool__(self) -> bool:
         return bool(self.poses or self.constraints or self.full)
@@ -55,6 +61,8 @@ class GraphDeltaWriter(Generic[ConstraintT]):
     """A keyframe whose pose moved less than this (and ``rotation_rad``) since last sent is not sent again."""
     rotation_rad: float = 0.002
     sequence: int = 0
+    epoch: int = field(default_factory=lambda: secrets.randbits(63) + 1)
+    """This writer's run: random, so that a restarted agent is told from a running one."""
     _sent_poses: dict[int, Pose] = field(default_factory=dict)
     _sent_constraints: int = 0
 
@@ -81,7 +89,9 @@ class GraphDeltaWriter(Generic[ConstraintT]):
         self.sequence += 1
         self._sent_poses.update(changed)
         self._sent_constraints = len(constraints)
-        return GraphUpdate(self.sequence, False, changed, {i: float(stamps[i]) for i in changed}, new_constraints)
+        return GraphUpdate(
+            self.sequence, False, changed, {i: float(stamps[i]) for i in changed}, new_constraints, self.epoch
+        )
 
     def full(
         self, poses: Mapping[int, Pose], stamps: Mapping[int, float], constraints: Sequence[ConstraintT]
@@ -94,6 +104,7 @@ class GraphDeltaWriter(Generic[ConstraintT]):
             {i: np.array(poses[i], dtype=np.float64) for i in self._sent_poses if i in poses},
             {i: float(stamps[i]) for i in self._sent_poses if i in stamps},
             list(constraints[: self._sent_constraints]),
+            self.epoch,
         )
 
     def _emit(
@@ -103,7 +114,12 @@ class GraphDeltaWriter(Generic[ConstraintT]):
         self._sent_poses = {i: np.array(p, dtype=np.float64) for i, p in poses.items()}
         self._sent_constraints = len(constraints)
         return GraphUpdate(
-            self.sequence, full, dict(self._sent_poses), {i: float(stamps[i]) for i in poses}, list(constraints)
+            self.sequence,
+            full,
+            dict(self._sent_poses),
+            {i: float(stamps[i]) for i in poses},
+            list(constraints),
+            self.epoch,
         )
 
     def _moved(self, sent: Pose, now: Pose) -> bool:
@@ -122,6 +138,8 @@ class GraphMirror(Generic[ConstraintT]):
     constraints: list[ConstraintT] = field(default_factory=list)
     sequence: int = 0
     """Sequence of the last update applied (0: none yet)."""
+    epoch: int = 0
+    """The writer's run the mirror holds (0: none yet)."""
     synced: bool = False
     """Whether the mirror holds the writer's graph as of ``sequence`` (False until a full graph, or the first
     update, arrives; False again after a gap)."""
@@ -132,7 +150,12 @@ class GraphMirror(Generic[ConstraintT]):
     def apply(self, update: GraphUpdate[ConstraintT]) -> bool:
         """Apply an update; False when the mirror is out of sync (a gap before it: ask the writer for the full
         graph). Deltas that arrive while out of sync are kept and applied after the full graph they follow; a full
-        graph older than the mirror (answered after newer deltas arrived) is ignored."""
+        graph older than the mirror (answered after newer deltas arrived) is ignored. An update of a new epoch (the
+        writer restarted) first empties the mirror."""
+        if update.epoch != self.epoch:
+            self.poses, self.stamps, self.constraints = {}, {}, []
+            self.sequence, self.synced, self.epoch = 0, False, update.epoch
+            self._pending.clear()
         if update.full:
             if self.synced and update.sequence < self.sequence:
                 return True
@@ -201,4 +224,5 @@ def graph_update_from_message(msg: Any, poses: Sequence[Pose], stamps: Sequence[
         {i: np.asarray(p, dtype=np.float64) for i, p in zip(ids, poses, strict=True)},
         {i: float(t) for i, t in zip(ids, stamps, strict=True)},
         list(msg.constraints),
+        int(msg.epoch),
     )

@@ -51,6 +51,8 @@ class KeyframeSummary:
     """``(N,)`` depth along the optical axis (m); every feature has one."""
     descriptors: NDArray[np.uint8]
     """``(N, D)`` binary descriptors."""
+    epoch: int = 0
+    """The sending SLAM run (its graph's epoch): a new one means the agent restarted with a new map frame."""
 
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
@@ -95,6 +97,7 @@ def summarize(
     descriptors: NDArray[np.uint8],
     *,
     max_features: int = 400,
+    epoch: int = 0,
 ) -> KeyframeSummary:
     """The summary of a keyframe: its features with a depth the summary can carry, at most ``max_features``
     spread over the image, quantised as they will be on the wire (so sender and receiver see the same values)."""
@@ -122,6 +125,7 @@ def summarize(
         keypoints=quantised_uv.astype(np.float32),
         depth=quantised_depth.astype(np.float32),
         descriptors=np.ascontiguousarray(descriptors[index]),
+        epoch=int(epoch),
     )
 
 
@@ -140,6 +144,7 @@ def summary_fields(summary: KeyframeSummary) -> dict[str, Any]:
         "depth_mm": np.clip(np.round(summary.depth.astype(np.float64) * 1000.0), 0, MAX_DEPTH_MM).astype(np.uint16),
         "descriptor_length": int(summary.descriptors.shape[1]) if summary.descriptors.ndim == 2 else 0,
         "descriptors": np.ascontiguousarray(summary.descriptors, dtype=np.uint8).reshape(-1),
+        "epoch": int(summary.epoch),
     }
 
 
@@ -183,4 +188,5 @@ def summary_from_message(msg: Any, pose: NDArray[np.float64], stamp_ns: int) -> 
         keypoints=(keypoints.reshape(count, 2).astype(np.float32) / np.float32(KEYPOINT_SUBPIXELS)).astype(np.float32),
         depth=depth_mm.astype(np.float32) / 1000.0,
         descriptors=descriptors.reshape(count, length if count else 0).copy(),
+        epoch=int(msg.epoch),
     )

@@ -359,6 +359,9 @@ class SlamNode:
         while not self._stop.is_set():
             pair = self.queue.take(timeout_s=0.5)
             if pair is None:
+                if self.linker.queue:  # no camera frames (a robot standing still): peers' keyframes still count
+                    with self._lock:
+                        self.collaborate(self.node.now_ns(), None)
                 continue
             waited = time.monotonic()
             self._wait_for_wheels(pair.stamp_ns / 1e9)
@@ -416,9 +419,10 @@ class SlamNode:
         self.publish_diagnostics(stamp_ns, step, step_ms, (time.monotonic() - pair.completed) * 1e3)
         return step
 
-    def collaborate(self, stamp_ns: int, step: StepResult) -> None:
+    def collaborate(self, stamp_ns: int, step: StepResult | None) -> None:
         """Recognise queued peer keyframes within the budget, and publish this agent's place in the fleet frame
-        once its closures with a placed peer agree (the reference agent's map frame is the fleet frame)."""
+        once its closures with a placed peer agree (the reference agent's map frame is the fleet frame); with this
+        frame's ``step``, also its camera pose in the fleet frame."""
         if self.pipeline is None:
             return
         if self.linker.queue and self.pipeline.loop_closure:
@@ -439,10 +443,11 @@ class SlamNode:
         if self.fleet_transform is None:
             log.info("%s: placed in the fleet frame (reference %s)", self.agent, reference)
         self.fleet_transform = transform
-        fleet_pose = get_type("geometry_msgs/msg/PoseStamped")(
-            header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(transform @ step.pose)
-        )
-        self.fleet_pose_pub.publish(fleet_pose)
+        if step is not None:
+            fleet_pose = get_type("geometry_msgs/msg/PoseStamped")(
+                header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(transform @ step.pose)
+            )
+            self.fleet_pose_pub.publish(fleet_pose)
         # The placement is refined with every closure by millimetres: it goes out when it moved by more than
         # ``fleet_transform_change`` (the fleet map re-lands the agent's whole map on each), on tf once a second.
         now = time.monotonic()
@@ -558,7 +563,7 @@ class SlamNode:
         if self.pipeline is not None and self.camera_info is not None and binary:
             summary = summarize(
                 self.agent, keyframe_id, stamp_ns, pose, self.pipeline.intrinsics, result.keypoints, result.points3d,
-                descriptors, max_features=self.config.collaboration.summary_features,
+                descriptors, max_features=self.config.collaboration.summary_features, epoch=self.graph_writer.epoch,
             )  # fmt: skip
             fields = summary_fields(summary)
             summary_msg = message_from_dict("fleetslam_msgs/msg/KeyframeSummary", fields)
@@ -620,7 +625,7 @@ class SlamNode:
                 )
                 for c, relative in zip(constraints, relative_msgs, strict=True)
             ],
-            optimized=optimized, sequence=sequence, full=full,
+            optimized=optimized, sequence=sequence, full=full, epoch=self.graph_writer.epoch,
         )  # fmt: skip
 
     def on_full_graph(self, request: Any) -> Any:
@@ -657,6 +662,12 @@ class SlamNode:
         with self._lock:
             self.pipeline = None
             self.frames = 0
+            # A new map frame: a new graph epoch (peers drop what they had of this agent), no closures, not placed.
+            self.graph_writer = GraphDeltaWriter()
+            self.linker = InterAgentLinker(self.agent, self.config.collaboration)
+            self._recognizer = None
+            self.fleet_transform = None
+            self._fleet_published = (0.0, np.zeros((4, 4)))
             if self.camera_info is not None:
                 self._start_pipeline(self.camera_info)
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="SLAM reset")
