@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from fleetslam.fusion.consistency import (
@@ -16,6 +18,7 @@ from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle
 
 #: Where the peer's map frame truly lies in this agent's map frame.
 TRUE_ALIGNMENT = pose_from_xyz_rpy(4.0, -3.0, 0.0, 0.0, 0.0, np.radians(70.0))
+IDS = itertools.count(1)
 SHELF_PERIOD = pose_from_xyz_rpy(2.4, 0.0, 0.0, 0.0, 0.0, 0.0)
 """The aisle repeats every 2.4 m along this agent's x axis."""
 
@@ -30,7 +33,8 @@ def closure(own_x: float, own_y: float, rng: np.random.Generator, *, shifted: bo
         peer_in_own = SHELF_PERIOD @ peer_in_own
     peer_pose = invert(TRUE_ALIGNMENT) @ peer_in_own
     noise = pose_from_xyz_rpy(*rng.normal(0.0, 0.02, 3), *rng.normal(0.0, np.radians(0.5), 3))
-    return PairClosure(0, 0, own_pose, peer_pose @ noise, relative)
+    own_id, peer_id = next(IDS), next(IDS)
+    return PairClosure(own_id, peer_id, own_pose, peer_pose @ noise, relative)
 
 
 def test_closures_on_the_same_map_frame_are_consistent_and_a_shifted_one_is_not() -> None:
@@ -110,3 +114,12 @@ def test_fit_alignment_of_exact_closures_is_exact() -> None:
         c = closure(x, y, rng)
         exact.append(PairClosure(0, 0, c.own_pose, invert(TRUE_ALIGNMENT) @ c.own_pose @ c.relative, c.relative))
     np.testing.assert_allclose(fit_alignment(exact), TRUE_ALIGNMENT, atol=1e-9)
+
+
+def test_the_same_pair_of_keyframes_counts_once() -> None:
+    rng = np.random.default_rng(6)
+    closures = ClosureSet()
+    first = closure(0.0, 0.0, rng)
+    assert closures.add(first)
+    assert not closures.add(PairClosure(first.own_id, first.peer_id, first.own_pose, first.peer_pose, first.relative))
+    assert len(closures.closures) == 1

@@ -146,3 +146,48 @@ def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_resta
     assert writer.sent_keyframes >= keyframes - 1  # the newest may wait for graph_period
     assert slam["c3po"].counts["bad_peer_messages"] == slam["r2d2"].counts["bad_peer_messages"] == 0
     assert slam["r2d2"].counts["peer_closures"] >= 6  # three before the restart, three after, at least
+
+
+def test_a_late_agent_is_placed_from_the_closures_the_other_shares(make_context: Callable[..., Context]) -> None:
+    """c3po maps first and stands still; r2d2 starts afterwards. r2d2 never receives c3po's keyframes (they were sent
+    before it joined), so it is placed from the closures c3po verifies against r2d2's keyframes and shares in its
+    graph (r2d2 fetches the graph it missed the start of)."""
+    textures = make_textures(np.random.default_rng(5))
+    truth = {"c3po": drive(-1.6, 0.8, 0.0, 25), "r2d2": drive(0.9, -1.5, 0.25, 25)}
+    frames = {
+        agent: [RGBDFrame(k, 3000.0 + 0.2 * k, *render(pose, INTRINSICS, textures)) for k, pose in enumerate(poses)]
+        for agent, poses in truth.items()
+    }
+    warm = SlamPipeline(SlamConfig(), intrinsics=INTRINSICS)
+    for frame in frames["c3po"][:3]:
+        warm.step(frame)
+    poses: dict[str, dict[int, np.ndarray]] = {agent: {} for agent in truth}
+    slam: dict[str, SlamNode] = {}
+    with Node("listener", context=make_context()) as listener:
+        for agent in truth:
+            listener.create_subscription(
+                "nav_msgs/msg/Odometry", f"/{agent}/slam/odom",
+                lambda msg, a=agent: poses[a].__setitem__(ns_from_stamp(msg.header.stamp), pose_matrix(msg.pose.pose)),
+            )  # fmt: skip
+        for agent in ("c3po", "r2d2"):
+            peer = "r2d2" if agent == "c3po" else "c3po"
+            slam[agent] = SlamNode(Node("slam", context=make_context(agent)), SlamNodeConfig(peers=[peer]))
+            driver = FrameListCamera(
+                INTRINSICS, frames[agent], rate=5.0, ready=lambda i, a=agent: len(poses[a]) >= i - 1
+            )
+            camera = CameraNode(Node("camera", context=make_context(), namespace=f"/{agent}"), driver,
+                                base_camera=BASE_CAMERA)  # fmt: skip
+            assert wait_until(lambda a=agent: slam[a].base_camera is not None, 10.0)
+            camera.start()
+            driver.go.set()
+            assert camera.join(60.0)
+            assert wait_until(lambda a=agent: len(poses[a]) >= 24, 20.0)
+            camera.close()
+        assert wait_until(lambda: slam["r2d2"].fleet_transform is not None, 30.0), (
+            slam["r2d2"].counts, slam["c3po"].counts, {p: s.decision for p, s in slam["r2d2"].linker.peers.items()},
+        )  # fmt: skip
+    assert slam["r2d2"].counts["peer_closures"] == 0  # nothing of c3po's to recognise: placed by what c3po shared
+    assert slam["c3po"].counts["peer_closures"] >= 3
+    assert slam["r2d2"].counts["graph_requests"] >= 1  # it joined c3po's graph updates late
+    expected = invert(world_from_map(truth, frames, poses, "c3po")) @ world_from_map(truth, frames, poses, "r2d2")
+    assert_close(slam["r2d2"].fleet_transform, expected)

@@ -141,14 +141,14 @@ ROSIDL_HASHES = {
 # Our own types' hashes, pinned: a change here changes every key of the type on the wire, so it must be
 # deliberate (update the value together with the .msg/.srv file).
 OWN_HASHES = {
-    "fleetslam_msgs/msg/GraphConstraint": "RIHS01_b6aff8c109272e7d67300865ed55c865807ba5cf360a3d5a50e60a7542f04bd2",
+    "fleetslam_msgs/msg/GraphConstraint": "RIHS01_1262d1fec1c60c2808714736b6d73c88f55078a8757e1bab1fb1b596e9af0966",
     "fleetslam_msgs/msg/Keyframe": "RIHS01_543c3636a0e5bc7efe2c34e18b47ca3d1236627499a6cfe4ec0b0109960aa79b",
-    "fleetslam_msgs/msg/KeyframeGraph": "RIHS01_b78f7555e927a9f073c7f786f821566b24526bbd7b24a441255f6cd52e8e5ced",
+    "fleetslam_msgs/msg/KeyframeGraph": "RIHS01_99e50b76c267db818286c0aab70ba14f85d6edb4092b9f557e595209d8e7e129",
     "fleetslam_msgs/msg/KeyframeSummary": "RIHS01_801e7ce1182611a70785fdf180107625114573817ab34832c7902008a8a814a5",
     "fleetslam_msgs/msg/TopicStatistics": "RIHS01_0590184078b17dff505612860e427c5e9c7bbda0266338982a6d9dd887ac2349",
     "fleetslam_msgs/srv/SaveMap": "RIHS01_d610d53a3cfbc6580bae8d894bb394ef66eb3c76b8b4a3d538e641e3dfa27df3",
     "fleetslam_msgs/srv/ClearBbx": "RIHS01_5a9f7281918c9db4914931a3b64faca748b4b1b0271808e14db3a5bdda3dabea",
-    "fleetslam_msgs/srv/GetGraph": "RIHS01_284628fb604a3b887dd4908a45d31e5bf3c3b15f4468a7991734c34b655b5d44",
+    "fleetslam_msgs/srv/GetGraph": "RIHS01_25d8c6f069b8083ccec601f1afd0bf17fc1d26f0e1c30999c30ba088e56917b4",
 }
 
 

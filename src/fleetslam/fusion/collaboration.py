@@ -7,9 +7,11 @@ and the peers' map frames placed in its own once the closures agree.
   the oldest of a peer leave first when it floods);
 - ``apply_graph``: a peer's graph update arrived (its :class:`~fleetslam.fusion.graph_exchange.GraphMirror`
   tells whether a full graph must be requested);
+- ``receive_shared``: a closure a peer verified with this agent (it publishes them in its graph), so that an agent
+  that joined late, or whose view a peer recognised first, is placed from the peer's evidence too;
 - ``step``: from the thread that owns the memory, between frames, verify queued summaries within a time budget;
-  each verified match becomes a :class:`~fleetslam.fusion.consistency.PairClosure` in that peer's
-  :class:`~fleetslam.fusion.consistency.ClosureSet`, whose decision gives ``T_ownmap_peermap``.
+  each verified match, and each shared closure, becomes a :class:`~fleetslam.fusion.consistency.PairClosure` in
+  that peer's :class:`~fleetslam.fusion.consistency.ClosureSet`, whose decision gives ``T_ownmap_peermap``.
 
 Placing the agent in the fleet frame (:meth:`InterAgentLinker.fleet_transform`): the fleet frame is the map frame
 of the reference agent (configured; by default the alphabetically first agent of the fleet); an agent aligned with
@@ -65,6 +67,19 @@ class CollaborationConfig(ConfigModel):
     """Extra disagreement allowed per metre between the two places (both agents' drift)."""
 
 
+@dataclass(frozen=True)
+class SharedClosure:
+    """A closure a peer verified with this agent: the peer's keyframe ``peer_id`` sees this agent's ``own_id``."""
+
+    peer: str
+    peer_id: int
+    own_id: int
+    relative: Pose
+    """``T_peercamera_owncamera``."""
+    epoch: int
+    """The peer's run it came from."""
+
+
 @dataclass
 class PeerState:
     """What this agent knows of one peer."""
@@ -97,6 +112,8 @@ class InterAgentLinker:
         """Summaries are queued by the middleware's thread and taken by the one that owns the memory."""
         self.dropped = 0
         """Peer keyframes that left the queue unprocessed (flood or a busy agent)."""
+        self.shared: deque[SharedClosure] = deque(maxlen=self.config.max_queued * 4)
+        """Closures peers verified with this agent, waiting for the memory's thread (the oldest leave first)."""
 
     def peer(self, agent: str) -> PeerState:
         """The state of a peer (created on first use)."""
@@ -131,6 +148,9 @@ class InterAgentLinker:
             state.decision = None
             with self._queue_lock:
                 self.queue = deque(s for s in self.queue if s.agent != agent or s.epoch == epoch)
+                kept = [c for c in self.shared if c.peer != agent or c.epoch == epoch]
+                self.shared.clear()
+                self.shared.extend(kept)
         state.epoch = epoch
 
     def queue_summary(self, summary: KeyframeSummary) -> None:
@@ -149,11 +169,45 @@ class InterAgentLinker:
         self._observe_epoch(agent, update.epoch)
         return self.peer(agent).mirror.apply(update)
 
-    def step(self, recognizer: PeerPlaceRecognizer, own_camera_poses: Mapping[int, Pose]) -> list[PeerMatch]:
-        """Recognise queued peer keyframes until the queue is empty or the budget is spent; returns the matches
-        verified (each also added to its peer's closures, whose decision is updated)."""
+    def receive_shared(self, closure: SharedClosure) -> None:
+        """A closure a peer verified with this agent (of this agent's current run), used at the next :meth:`step`."""
+        self._observe_epoch(closure.peer, closure.epoch)
+        with self._queue_lock:
+            self.shared.append(closure)
+
+    def _take_shared(self, own_camera_poses: Mapping[int, Pose]) -> int:
+        """Add the shared closures whose keyframes are known on both sides; the others wait (bounded)."""
+        with self._queue_lock:
+            pending = list(self.shared)
+            self.shared.clear()
+        added, waiting = 0, []
+        for closure in pending:
+            state = self.peer(closure.peer)
+            if closure.epoch != state.epoch:
+                continue
+            peer_pose = state.mirror.poses.get(closure.peer_id)
+            own_pose = own_camera_poses.get(closure.own_id)
+            if peer_pose is None or own_pose is None:
+                waiting.append(closure)
+                continue
+            if state.closures.add(
+                PairClosure(closure.own_id, closure.peer_id, np.asarray(own_pose), peer_pose, invert(closure.relative))
+            ):
+                added += 1
+                state.decision = state.closures.decide()
+        with self._queue_lock:
+            self.shared.extendleft(reversed(waiting))
+        return added
+
+    def step(self, recognizer: PeerPlaceRecognizer | None, own_camera_poses: Mapping[int, Pose]) -> list[PeerMatch]:
+        """Take the closures peers shared, then recognise queued peer keyframes until the queue is empty or the
+        budget is spent (not without a ``recognizer``); returns the matches verified here (each also added to its
+        peer's closures, whose decision is updated)."""
         start = self.clock()
         matches: list[PeerMatch] = []
+        self._take_shared(own_camera_poses)
+        if recognizer is None:
+            return matches
         while (self.clock() - start) * 1000.0 < self.config.budget_ms:
             with self._queue_lock:
                 if not self.queue:

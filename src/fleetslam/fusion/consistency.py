@@ -146,8 +146,11 @@ class ClosureSet:
     closures: list[PairClosure] = field(default_factory=list)
     _adjacency: list[set[int]] = field(default_factory=list)
 
-    def add(self, closure: PairClosure) -> None:
-        """Add a verified closure (the oldest is dropped beyond ``max_closures``)."""
+    def add(self, closure: PairClosure) -> bool:
+        """Add a verified closure (the oldest is dropped beyond ``max_closures``); False when the same pair of
+        keyframes is there already (both agents may verify it: it is one piece of evidence)."""
+        if any(c.own_id == closure.own_id and c.peer_id == closure.peer_id for c in self.closures):
+            return False
         if len(self.closures) >= self.max_closures:
             self.closures.pop(0)
             self._adjacency = [{j - 1 for j in row if j > 0} for row in self._adjacency[1:]]
@@ -157,6 +160,7 @@ class ClosureSet:
             self._adjacency[j].add(index)
         self.closures.append(closure)
         self._adjacency.append(row)
+        return True
 
     def decide(self) -> Decision:
         """The largest consistent set, and the alignment it gives when it is large, spread and unrivalled."""

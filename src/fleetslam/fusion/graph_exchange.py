@@ -72,11 +72,17 @@ class GraphDeltaWriter(Generic[ConstraintT]):
         return len(self._sent_poses)
 
     def update(
-        self, poses: Mapping[int, Pose], stamps: Mapping[int, float], constraints: Sequence[ConstraintT]
+        self,
+        poses: Mapping[int, Pose],
+        stamps: Mapping[int, float],
+        constraints: Sequence[ConstraintT],
+        *,
+        full: bool = False,
     ) -> GraphUpdate[ConstraintT] | None:
         """The next delta, or None when nothing changed. ``constraints`` only grow; if the list is shorter than what
-        was sent (constraints retracted), the update is a full graph."""
-        if len(constraints) < self._sent_constraints or any(i not in poses for i in self._sent_poses):
+        was sent (constraints retracted), or with ``full`` (the caller's list was rebuilt), the update is a full
+        graph."""
+        if full or len(constraints) < self._sent_constraints or any(i not in poses for i in self._sent_poses):
             return self._emit(poses, stamps, constraints, full=True)
         changed = {
             i: np.array(pose, dtype=np.float64)

@@ -36,7 +36,7 @@ from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import MessageError, UnsafePathError
-from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker
+from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_from_message
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields, summary_from_message
 from fleetslam.geometry import invert, rotation_angle
@@ -56,6 +56,7 @@ from fleetslam.msg.typesys import get_type, header, message_from_dict, ns_from_s
 from fleetslam.save_paths import save_path
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.frame_queue import FramePair, FrameQueue
+from fleetslam.slam.peer_recognition import PeerMatch
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
 from fleetslam.slam.pose_buffer import PoseBuffer
 
@@ -204,6 +205,13 @@ class SlamNode:
         self.fleet_transform: np.ndarray | None = None
         """``T_fleet_map`` of this agent, once placed."""
         self._fleet_published = (0.0, np.zeros((4, 4)))
+        self._constraints: list[Any] = []
+        """What the graph messages carry, append-only: the pipeline's constraints and the inter-agent closures this
+        agent verified (shared with the peers, which use them too), in the order they came."""
+        self._pipeline_constraints = 0
+        self._inter_agent: list[tuple[PeerMatch, int]] = []
+        """Closures verified with peers, with the peer's run (epoch) they refer to."""
+        self._inter_agent_sent = 0
         self._graph_clients: dict[str, Any] = {}
         self._graph_requests: set[str] = set()
         for peer in self.config.peers:
@@ -321,6 +329,18 @@ class SlamNode:
             return
         if not self.linker.apply_graph(peer, update):
             self._request_graph(peer)
+        self._receive_shared(peer, update)
+
+    def _receive_shared(self, peer: str, update: GraphUpdate[Any]) -> None:
+        """The closures ``peer`` verified with this agent's current run, from its graph, to the linker."""
+        for c in update.constraints:
+            if (int(c.kind) == 2 and c.from_agent == peer and c.to_agent == self.agent
+                    and int(c.to_epoch) == self.graph_writer.epoch):  # fmt: skip
+                relative = _valid_pose(partial(pose_matrix, c.relative))
+                if relative is None:
+                    self._bad_peer_message(peer, "inter-agent constraint", "relative pose not finite or not a rotation")
+                    continue
+                self.linker.receive_shared(SharedClosure(peer, int(c.from_id), int(c.to_id), relative, update.epoch))
 
     def _request_graph(self, peer: str) -> None:
         """Ask ``peer`` for its whole graph, off the middleware's thread (one request per peer at a time)."""
@@ -334,7 +354,9 @@ class SlamNode:
                 request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
                 response = self._graph_clients[peer].call(request, timeout=5.0)
                 if str(response.graph.agent) == peer:
-                    self.linker.apply_graph(peer, _graph_update(response.graph))
+                    update = _graph_update(response.graph)
+                    self.linker.apply_graph(peer, update)
+                    self._receive_shared(peer, update)
             except Exception as err:  # a peer gone or a malformed answer: the next gap asks again
                 log.info("%s: %s's graph could not be fetched: %s", self.agent, peer, err)
             finally:
@@ -425,7 +447,7 @@ class SlamNode:
         frame's ``step``, also its camera pose in the fleet frame."""
         if self.pipeline is None:
             return
-        if self.linker.queue and self.pipeline.loop_closure:
+        if (self.linker.queue or self.linker.shared) and self.pipeline.loop_closure:
             if self._recognizer is None:
                 self._recognizer = self.pipeline.peer_recognizer(
                     max_verifications=self.config.collaboration.max_verifications
@@ -434,6 +456,11 @@ class SlamNode:
             matches = self.linker.step(self._recognizer, self.pipeline.keyframe_poses())
             self.counts["peer_keyframes"] += sum(state.recognised for state in self.linker.peers.values()) - before
             self.counts["peer_closures"] += len(matches)
+            if matches:
+                self._inter_agent += [(m, self.linker.peer(m.peer_agent).epoch) for m in matches]
+                self._graph_changed = True
+                if step is None:  # idle: no frame will publish the graph soon
+                    self.publish_graph(stamp_ns, optimized=False)
         if not self.config.peers and not self.config.fleet_reference:
             return  # alone: no fleet to be placed in
         reference = self.config.fleet_reference or min([self.agent, *self.config.peers])
@@ -584,8 +611,8 @@ class SlamNode:
         self._graph_changed = False
         poses = self.pipeline.keyframe_poses()
         stamps = self.pipeline.keyframe_stamps
-        constraints = self.pipeline.constraints()
-        update = self.graph_writer.update(poses, stamps, constraints)
+        constraints, rebuilt = self._graph_constraints()
+        update = self.graph_writer.update(poses, stamps, constraints, full=rebuilt)
         graph = self._graph_message(
             stamp_ns, poses, stamps, constraints, sequence=self.graph_writer.sequence, full=True, optimized=optimized
         )
@@ -606,6 +633,20 @@ class SlamNode:
         stamped = [pose_stamped(header=graph.header, pose=p) for p in graph.poses]
         self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=graph.header, poses=stamped))
 
+    def _graph_constraints(self) -> tuple[list[Any], bool]:
+        """The constraints the graph carries (append-only, see ``_constraints``), and whether the list was rebuilt
+        (the back-end retracted a loop: readers get the whole graph)."""
+        assert self.pipeline is not None
+        pipeline = self.pipeline.constraints()
+        rebuilt = len(pipeline) < self._pipeline_constraints
+        if rebuilt:
+            self._constraints, self._pipeline_constraints, self._inter_agent_sent = [], 0, 0
+        self._constraints += pipeline[self._pipeline_constraints :]
+        self._pipeline_constraints = len(pipeline)
+        self._constraints += self._inter_agent[self._inter_agent_sent :]
+        self._inter_agent_sent = len(self._inter_agent)
+        return self._constraints, rebuilt
+
     def _graph_message(
         self, stamp_ns: int, poses: Mapping[int, np.ndarray], stamps: Mapping[int, float], constraints: Sequence[Any],
         *, sequence: int, full: bool, optimized: bool,
@@ -613,18 +654,27 @@ class SlamNode:
         """A ``KeyframeGraph`` of these keyframes and constraints (all of them, or a delta)."""
         ids = sorted(poses)
         constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
-        relative_msgs = pose_msgs([c.transform for c in constraints])
+        inter_information = np.eye(6).reshape(36) * 1e4  # 1 cm / 0.01 rad, as a verified intra-agent loop
+
+        def constraint(c: Any, relative: Any) -> Any:
+            if isinstance(c, tuple):  # (PeerMatch, the peer's epoch): a closure shared with the peer
+                match, epoch = c
+                return constraint_type(
+                    from_id=int(match.own_id), to_id=int(match.peer_id), from_agent=self.agent,
+                    to_agent=match.peer_agent, kind=2, relative=relative, information=inter_information,
+                    to_epoch=int(epoch),
+                )  # fmt: skip
+            return constraint_type(
+                from_id=int(c.a), to_id=int(c.b), from_agent=self.agent, to_agent=self.agent,
+                kind=1 if c.kind == "loop" else 0, relative=relative,
+                information=np.asarray(c.information, np.float64).reshape(36), to_epoch=0,
+            )  # fmt: skip
+
+        relative_msgs = pose_msgs([c[0].relative if isinstance(c, tuple) else c.transform for c in constraints])
         return get_type("fleetslam_msgs/msg/KeyframeGraph")(
             header=header(self.config.map_frame, stamp_ns), agent=self.agent, keyframe_ids=np.asarray(ids, np.uint32),
             poses=pose_msgs([poses[i] for i in ids]), stamps=[stamp_from_ns(round(stamps[i] * 1e9)) for i in ids],
-            constraints=[
-                constraint_type(
-                    from_id=int(c.a), to_id=int(c.b), from_agent=self.agent, to_agent=self.agent,
-                    kind=1 if c.kind == "loop" else 0, relative=relative,
-                    information=np.asarray(c.information, np.float64).reshape(36),
-                )
-                for c, relative in zip(constraints, relative_msgs, strict=True)
-            ],
+            constraints=[constraint(c, r) for c, r in zip(constraints, relative_msgs, strict=True)],
             optimized=optimized, sequence=sequence, full=full, epoch=self.graph_writer.epoch,
         )  # fmt: skip
 
@@ -636,7 +686,7 @@ class SlamNode:
                 full: GraphUpdate[Any] = GraphUpdate(max(self.graph_writer.sequence, 1), True, {}, {}, [])
             else:
                 full = self.graph_writer.full(
-                    self.pipeline.keyframe_poses(), self.pipeline.keyframe_stamps, self.pipeline.constraints()
+                    self.pipeline.keyframe_poses(), self.pipeline.keyframe_stamps, self._constraints
                 )
             graph = self._graph_message(self.node.now_ns(), full.poses, full.stamps, full.constraints,
                                         sequence=max(full.sequence, 1), full=True, optimized=False)  # fmt: skip
@@ -664,6 +714,7 @@ class SlamNode:
             self.frames = 0
             # A new map frame: a new graph epoch (peers drop what they had of this agent), no closures, not placed.
             self.graph_writer = GraphDeltaWriter()
+            self._constraints, self._pipeline_constraints, self._inter_agent, self._inter_agent_sent = [], 0, [], 0
             self.linker = InterAgentLinker(self.agent, self.config.collaboration)
             self._recognizer = None
             self.fleet_transform = None
