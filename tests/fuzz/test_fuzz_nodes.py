@@ -126,7 +126,7 @@ def test_every_node_survives_hostile_samples_on_every_topic_and_keeps_its_rate(
     fuzzed = targets([robot, slam, mapping, fleet, station.node])
     topics = {t.topic for t in fuzzed}
     assert {"/c3po/cmd_vel", "/c3po/camera/rgb/image_raw", "/c3po/camera/depth/image_raw", "/c3po/keyframes",
-            "/c3po/graph", "/c3po/map/octomap", "/statistics", "/c3po/path", "/c3po/ground_truth/odom",
+            "/c3po/graph_updates", "/c3po/map/octomap", "/statistics", "/c3po/path", "/c3po/ground_truth/odom",
             "/r2d2/keyframe_summaries", "/r2d2/graph_updates", "/r2d2/slam/fleet_transform"} <= topics, (
         topics)  # fmt: skip
     attacker = plain_session(router_endpoint)

@@ -72,15 +72,18 @@ def test_mapping_node_maps_keyframes_and_serves(make_context: Callable[..., Cont
     assert wait_until(lambda: clouds[-1].width == 0, 5.0)
 
 
-def _graph(poses: dict[int, np.ndarray]) -> Any:
+def _graph(poses: dict[int, np.ndarray], sequence: int, *, full: bool = False) -> Any:
+    """A graph update as SLAM publishes it on ``graph_updates`` (or answers on ``graph/full``)."""
     entries = []
     for pose in poses.values():
         t, q = pose_to_quat(pose)
         entries.append({"position": dict(zip("xyz", t.tolist(), strict=True)),
                         "orientation": dict(zip("xyzw", q.tolist(), strict=True))})  # fmt: skip
     return message_from_dict(
-        "fleetslam_msgs/msg/KeyframeGraph", {"agent": "c3po", "keyframe_ids": list(poses), "poses": entries}
-    )
+        "fleetslam_msgs/msg/KeyframeGraph",
+        {"agent": "c3po", "keyframe_ids": list(poses), "poses": entries, "sequence": sequence, "full": full,
+         "epoch": 7, "stamps": [{"sec": i, "nanosec": 0} for i in poses]},
+    )  # fmt: skip
 
 
 def test_mapping_node_follows_the_latest_graph_and_builds_only_what_is_subscribed(
@@ -94,7 +97,7 @@ def test_mapping_node_follows_the_latest_graph_and_builds_only_what_is_subscribe
     markers: list[Any] = []
     viewer.create_subscription("sensor_msgs/msg/PointCloud2", "/c3po/map/occupied", clouds.append, QoSProfile(depth=5))
     keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
-    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph_updates", QoSProfile(depth=50))
     camera = T_BODY_OPTICAL.copy()
     camera[2, 3] = 0.5
     assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0, 10.0)
@@ -108,10 +111,10 @@ def test_mapping_node_follows_the_latest_graph_and_builds_only_what_is_subscribe
         return len(xyz) > 100 and bool(np.allclose(xyz[:, 0], x + 0.025, atol=0.03))
 
     assert wait_until(lambda: wall_at(2.0), 10.0)
-    # Optimised graphs in quick succession: each holds every pose, only the last one counts.
-    for shift in (0.2, 0.35, 0.5):
+    # Graph updates in quick succession (optimisations moving both keyframes): applied in order, the last counts.
+    for sequence, shift in enumerate((0.2, 0.35, 0.5), start=1):
         graph.publish(
-            _graph({0: pose_from_planar(shift, 0.0, 0.0) @ camera, 1: pose_from_planar(shift, 0, 0) @ camera})
+            _graph({0: pose_from_planar(shift, 0.0, 0.0) @ camera, 1: pose_from_planar(shift, 0, 0) @ camera}, sequence)
         )
     assert wait_until(lambda: wall_at(2.5), 10.0)  # both keyframes moved: rebuilt where the graph put them
     assert mapping.mapper.pending == 0
@@ -186,7 +189,7 @@ def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
     clouds: list[Any] = []
     viewer.create_subscription("sensor_msgs/msg/PointCloud2", "/c3po/map/occupied", clouds.append, QoSProfile(depth=5))
     keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
-    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph", QoSProfile(depth=5))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph_updates", QoSProfile(depth=50))
     camera = T_BODY_OPTICAL.copy()
     camera[2, 3] = 0.5
     assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0, 10.0)
@@ -200,7 +203,7 @@ def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
     assert wait_until(lambda: mapping.rejected == 2, 10.0), mapping.rejected
     keyframes.publish(_keyframe(2, camera, 2.0))
     assert wait_until(lambda: bool(clouds) and clouds[-1].width > 100, 10.0)  # the map still grows
-    bad_graph = _graph({2: camera})
+    bad_graph = _graph({2: camera}, 1)
     bad_graph.poses[0].position.z = float("inf")
     graph.publish(bad_graph)
     assert wait_until(lambda: mapping.rejected == 3, 10.0), mapping.rejected
@@ -212,3 +215,34 @@ def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
     response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path="after.bt"), timeout=10)
     assert response.success, response.message
     assert OccupancyOctree.read(tmp_path / "after.bt").is_occupied([2.525, 0.025, 0.525])
+
+
+def test_a_mapping_node_that_missed_the_start_of_the_graph_fetches_it_whole(
+    make_context: Callable[..., Context],
+) -> None:
+    """Started after SLAM: the first update it hears is number 6. It asks SLAM's ``graph/full`` (a real service over
+    the router, answering as SLAM does: the whole graph as of update 5), then applies 6 after it."""
+    camera = T_BODY_OPTICAL.copy()
+    camera[2, 3] = 0.5
+    slam = Node("slam", context=make_context("c3po"))
+    requests: list[Any] = []
+
+    def whole_graph(request: Any) -> Any:
+        requests.append(request)
+        whole = _graph({0: pose_from_planar(0.3, 0.0, 0.0) @ camera, 1: camera}, 5, full=True)
+        return get_type("fleetslam_msgs/srv/GetGraph_Response")(graph=whole)
+
+    slam.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", whole_graph)
+    mapping = MappingNode(Node("mapping", context=make_context("c3po")), MappingNodeConfig(publish_rate=5.0))
+    keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph_updates", QoSProfile(depth=50))
+    assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0, 10.0)
+    keyframes.publish(_keyframe(0, camera, 2.0))
+    keyframes.publish(_keyframe(1, camera, 2.0))
+    assert wait_until(lambda: 0 in mapping.mapper.scans and 1 in mapping.mapper.scans, 10.0)
+    graph.publish(_graph({1: pose_from_planar(0.1, 0.0, 0.0) @ camera}, 6))  # update 6: only keyframe 1 moved
+    assert wait_until(lambda: mapping.graph.synced and mapping.graph.sequence == 6, 10.0), mapping.graph
+    assert len(requests) == 1
+    assert wait_until(lambda: mapping.mapper.pending == 0, 10.0)
+    np.testing.assert_allclose(mapping.mapper.scans[0].pose, pose_from_planar(0.3, 0.0, 0.0) @ camera, atol=1e-9)
+    np.testing.assert_allclose(mapping.mapper.scans[1].pose, pose_from_planar(0.1, 0.0, 0.0) @ camera, atol=1e-9)

@@ -207,6 +207,23 @@ MAX_GRAPH_KEYFRAMES = 1_000_000
 """A received graph with more keyframes (or constraints) than this is refused."""
 
 
+def graph_update_of(msg: Any) -> GraphUpdate[Any]:
+    """A received ``fleetslam_msgs/KeyframeGraph`` as a :class:`GraphUpdate` (poses as 4×4 matrices, stamps in
+    seconds); a malformed one raises :class:`MessageError` naming the field."""
+    from fleetslam.msg.conversions import pose_matrix
+
+    where = f"KeyframeGraph from {str(msg.agent)!r}"
+    poses = []
+    for pose in msg.poses:
+        try:
+            matrix = pose_matrix(pose)
+        except ValueError as err:
+            raise MessageError(f"{where}: a pose is not a rotation ({err})") from err
+        poses.append(matrix)
+    stamps = [(int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)) / 1e9 for stamp in msg.stamps]
+    return graph_update_from_message(msg, poses, stamps)
+
+
 def graph_update_from_message(msg: Any, poses: Sequence[Pose], stamps: Sequence[float]) -> GraphUpdate[Any]:
     """A :class:`GraphUpdate` from a received ``fleetslam_msgs/KeyframeGraph`` whose poses and stamps the caller
     converted (``poses[k]``, ``stamps[k]`` of ``msg.keyframe_ids[k]``); its constraints are kept as they came.

@@ -20,7 +20,7 @@ from fleetslam.middleware.recording import BagWriter
 from fleetslam.middleware.stats_table import StatsTable
 from fleetslam.topics import (
     FLEET_TRANSFORM,
-    GRAPH,
+    GRAPH_UPDATES,
     GROUND_TRUTH_ODOM,
     ODOM,
     SLAM_DIAGNOSTICS,
@@ -119,7 +119,7 @@ class Monitor:
                 (GROUND_TRUTH_ODOM, self.tracks[f"{robot}/truth"]),
             ]
             if self.writer is not None:  # recorded only
-                followed += [(ODOM, None), (GRAPH, None)]
+                followed += [(ODOM, None), (GRAPH_UPDATES, None)]
             for topic, track in followed:
                 self.node.create_subscription(topic.type, topic.of(robot), partial(self._on_sample, track),
                                               topic.qos(depth=100), raw=True)  # fmt: skip

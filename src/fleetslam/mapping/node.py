@@ -1,19 +1,21 @@
 """The mapping node of one agent: keyframes and the optimised graph in, occupancy products out.
 
 Subscribes ``keyframes`` (fleetslam_msgs/Keyframe: depth as 16-bit PNG in mm, intrinsics, pose T_map_camera)
-and ``graph`` (fleetslam_msgs/KeyframeGraph: optimised poses; each holds every pose, so only the latest one is
-decoded, at the next tick). Publishes, at ``publish_rate`` when the map changed, ``map/occupied`` (PointCloud2 of
-occupied voxel centres), ``map/markers`` (MarkerArray, one CUBE_LIST per leaf size, coloured by height),
-``map/grid`` (OccupancyGrid over a height band) and ``map/octomap`` (octomap_msgs/Octomap, binary) — as
-octomap_server, each only while someone subscribes to it (a subscriber that comes later gets the current map at
-the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset`` (Trigger). The work
-is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`, incrementally.
+and ``graph_updates`` (fleetslam_msgs/KeyframeGraph deltas: new and moved keyframe poses, numbered; decoded at the
+next tick and kept in a :class:`~fleetslam.fusion.graph_exchange.GraphMirror`; a gap, as when the node starts after
+SLAM, asks SLAM's ``graph/full`` for the whole graph). Publishes, at ``publish_rate`` when the map changed,
+``map/occupied`` (PointCloud2 of occupied voxel centres), ``map/markers`` (MarkerArray, one CUBE_LIST per leaf size,
+coloured by height), ``map/grid`` (OccupancyGrid over a height band) and ``map/octomap`` (octomap_msgs/Octomap,
+binary) — as octomap_server, each only while someone subscribes to it (a subscriber that comes later gets the
+current map at the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset``
+(Trigger). The work is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`, incrementally.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -26,14 +28,14 @@ from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
-from fleetslam.geometry import quat_to_matrix
+from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
 from fleetslam.middleware import Node, Publisher
 from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix
-from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp
+from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp, serialize
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
@@ -109,7 +111,13 @@ class MappingNode:
         self.node = node
         self.config = config or MappingNodeConfig()
         self.mapper = KeyframeMapper(self.config.mapping)
-        self._latest_graph: bytes | None = None
+        self._graph_updates: list[bytes] = []
+        """Graph updates received since the last tick, in order (decoded at the tick)."""
+        self.graph = GraphMirror[Any]()
+        self._graph_client = node.create_client("fleetslam_msgs/srv/GetGraph", "graph/full")
+        self._graph_request: threading.Thread | None = None
+        self._graph_lock = threading.Lock()
+        """Guards ``_graph_updates``: the executor appends, the fetch of the whole graph puts it first."""
         self._version = 0
         """Incremented whenever the map changes; each product remembers the version it last published."""
         self._published = dict.fromkeys(("octomap", "occupied", "markers", "grid"), 0)  # nothing to say yet
@@ -127,10 +135,9 @@ class MappingNode:
                 ("grid", topics.MAP_GRID, self._grid),
             )
         }
-        keyframes, graph = topics.KEYFRAMES, topics.GRAPH
+        keyframes, graph = topics.KEYFRAMES, topics.GRAPH_UPDATES
         node.create_subscription(keyframes.type, keyframes.name, self.on_keyframe, keyframes.qos(depth=50))
-        # Latched: a mapping node started after SLAM gets the current graph at once.
-        node.create_subscription(graph.type, graph.name, self.on_graph_data, graph.qos(depth=1), raw=True)
+        node.create_subscription(graph.type, graph.name, self.on_graph_data, graph.qos(depth=50), raw=True)
         node.create_service("fleetslam_msgs/srv/SaveMap", "map/save", self.on_save)
         node.create_service("fleetslam_msgs/srv/ClearBbx", "map/clear_bbx", self.on_clear_bbx)
         node.create_service("std_srvs/srv/Trigger", "map/reset", self.on_reset)
@@ -157,29 +164,51 @@ class MappingNode:
             log.warning("%s ignored (%d inputs ignored so far): %s", what, self.rejected, err)
 
     def on_graph_data(self, data: bytes) -> None:
-        """Keep the latest graph's bytes: it supersedes every earlier one."""
-        self._latest_graph = data
+        """Keep a graph update's bytes for the next tick (bounded: a flood keeps the newest)."""
+        with self._graph_lock:
+            self._graph_updates.append(data)
+            del self._graph_updates[:-1000]
 
     def on_graph(self, msg: Any) -> None:
-        """Take the poses of a KeyframeGraph."""
-        ids = [int(i) for i in msg.keyframe_ids]
-        if not ids:
+        """Apply a KeyframeGraph (a delta, or the whole graph) and hand the keyframe poses that changed to the
+        mapper; a gap before it asks SLAM for the whole graph."""
+        update = graph_update_of(msg)
+        before = self.graph.sequence
+        if not self.graph.apply(update):
+            self._request_graph()
             return
-        xyz = np.array([(p.position.x, p.position.y, p.position.z) for p in msg.poses], dtype=np.float64)
-        xyzw = np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w) for p in msg.poses],
-                        dtype=np.float64)  # fmt: skip
-        poses = np.tile(np.eye(4), (len(ids), 1, 1))
-        poses[:, :3, :3] = quat_to_matrix(xyzw)
-        poses[:, :3, 3] = xyz
-        self.mapper.update_poses(dict(zip(ids, poses, strict=False)))
+        # In order: this update's poses; the whole graph, or deltas kept while waiting for it: every pose.
+        in_order = not update.full and self.graph.sequence == update.sequence == before + 1
+        changed = update.poses if in_order else self.graph.poses
+        if changed:
+            self.mapper.update_poses(dict(changed))
+
+    def _request_graph(self) -> None:
+        """SLAM's whole graph (``graph/full``), fetched off the executor; applied at a later tick."""
+        if self._graph_request is not None and self._graph_request.is_alive():
+            return
+
+        def ask() -> None:
+            try:
+                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
+                response = self._graph_client.call(request, timeout=5.0)
+                data = serialize(response.graph, "fleetslam_msgs/msg/KeyframeGraph")
+                with self._graph_lock:
+                    self._graph_updates.insert(0, data)
+            except Exception as err:  # SLAM not up yet, or gone: the next gap asks again
+                log.info("whole graph not fetched: %s", err)
+
+        self._graph_request = threading.Thread(target=ask, name=f"{self.node.fq_name}/graph", daemon=True)
+        self._graph_request.start()
 
     def on_timer(self) -> None:
-        if self._latest_graph is not None:
-            data, self._latest_graph = self._latest_graph, None
+        with self._graph_lock:
+            pending, self._graph_updates = self._graph_updates, []
+        for data in pending:
             try:
                 self.on_graph(deserialize(data, "fleetslam_msgs/msg/KeyframeGraph"))
-            except (MessageError, ValueError) as err:
-                self._reject("graph", err)
+            except (MessageError, ValueError, TypeError) as err:
+                self._reject("graph update", err)
         if self.mapper.pending:
             self._integrate(moved=time.monotonic() >= self._next_reintegration)
         if self._pacer.due():
@@ -312,6 +341,7 @@ class MappingNode:
 
     def on_reset(self, request: Any) -> Any:
         self.mapper.reset()
+        self.graph = GraphMirror[Any]()
         self._version += 1
         self.publish()
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="map reset")

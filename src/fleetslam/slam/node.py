@@ -37,7 +37,7 @@ from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
-from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_from_message
+from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_of
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields, summary_from_message
 from fleetslam.geometry import invert, rotation_angle
 from fleetslam.middleware import Node
@@ -112,18 +112,6 @@ class SlamNodeConfig(ConfigModel):
     fleet_transform_change: float = Field(default=0.02, gt=0.0)
     """``slam/fleet_transform`` is published again when the placement moved more than this (m; a tenth of it in
     radians): each publication makes the fleet map re-land this agent's whole map."""
-
-
-def _graph_update(msg: Any) -> GraphUpdate[Any]:
-    """A received ``KeyframeGraph`` as a :class:`GraphUpdate` (raises MessageError when it is malformed)."""
-    poses = []
-    for pose in msg.poses:
-        matrix = _valid_pose(partial(pose_matrix, pose))
-        if matrix is None:
-            raise MessageError(f"KeyframeGraph from {str(msg.agent)!r}: a pose is not finite or not a rotation")
-        poses.append(matrix)
-    stamps = [ns_from_stamp(stamp) / 1e9 for stamp in msg.stamps]
-    return graph_update_from_message(msg, poses, stamps)
 
 
 def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
@@ -323,7 +311,7 @@ class SlamNode:
             self._bad_peer_message(peer, "graph update", f"it names agent {str(msg.agent)!r}")
             return
         try:
-            update = _graph_update(msg)
+            update = graph_update_of(msg)
         except (MessageError, ValueError, TypeError) as err:
             self._bad_peer_message(peer, "graph update", err)
             return
@@ -354,7 +342,7 @@ class SlamNode:
                 request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
                 response = self._graph_clients[peer].call(request, timeout=5.0)
                 if str(response.graph.agent) == peer:
-                    update = _graph_update(response.graph)
+                    update = graph_update_of(response.graph)
                     self.linker.apply_graph(peer, update)
                     self._receive_shared(peer, update)
             except Exception as err:  # a peer gone or a malformed answer: the next gap asks again
@@ -613,10 +601,19 @@ class SlamNode:
         stamps = self.pipeline.keyframe_stamps
         constraints, rebuilt = self._graph_constraints()
         update = self.graph_writer.update(poses, stamps, constraints, full=rebuilt)
-        graph = self._graph_message(
-            stamp_ns, poses, stamps, constraints, sequence=self.graph_writer.sequence, full=True, optimized=optimized
-        )
-        self.graph_pub.publish(graph)
+        # The whole graph grows with the run (hundreds of kB): built only while someone reads it.
+        if self.graph_pub.matched_subscriptions:
+            self.graph_pub.publish(
+                self._graph_message(
+                    stamp_ns,
+                    poses,
+                    stamps,
+                    constraints,
+                    sequence=self.graph_writer.sequence,
+                    full=True,
+                    optimized=optimized,
+                )
+            )
         if update is not None:
             self.graph_updates_pub.publish(
                 self._graph_message(
@@ -629,9 +626,11 @@ class SlamNode:
                     optimized=optimized,
                 )
             )
-        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
-        stamped = [pose_stamped(header=graph.header, pose=p) for p in graph.poses]
-        self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=graph.header, poses=stamped))
+        if self.path_pub.matched_subscriptions:
+            stamp = header(self.config.map_frame, stamp_ns)
+            pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
+            stamped = [pose_stamped(header=stamp, pose=p) for p in pose_msgs([poses[i] for i in sorted(poses)])]
+            self.path_pub.publish(get_type("nav_msgs/msg/Path")(header=stamp, poses=stamped))
 
     def _graph_constraints(self) -> tuple[list[Any], bool]:
         """The constraints the graph carries (append-only, see ``_constraints``), and whether the list was rebuilt

@@ -113,9 +113,10 @@ class StationBridge:
             return
         for source, odom in (("odom", topics.ODOM), ("slam", topics.SLAM_ODOM), ("truth", topics.GROUND_TRUTH_ODOM)):
             sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=1))
-        path, graph = topics.PATH, topics.GRAPH
+        # The keyframe poses come with the path (the same poses): the whole graph, constraints and all, grows to
+        # hundreds of kB and would cost the station that much every second for nothing it shows.
+        path = topics.PATH
         sub(path.type, path.of(name), lambda m: self._on_path(view, "slam", m), path.qos(depth=1))
-        sub(graph.type, graph.of(name), lambda m: self._on_graph(view, m), graph.qos(depth=1))
         for kind, image in (("rgb", topics.RGB_IMAGE), ("depth", topics.DEPTH_IMAGE)):
             # Raw: an image is decoded only when a console shows that camera and its period is due (the
             # station otherwise deserialised every frame of every camera, ~8 MB/s in the demo, for nothing).
@@ -171,12 +172,14 @@ class StationBridge:
         points = [[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in msg.poses]
         view.paths[source] = points
         self.emit({"type": "path", "agent": view.name, "source": source, "points": points}, None)
+        if source == "slam":  # SLAM's path is its keyframes' poses
+            self._on_keyframes(view, [s.pose for s in msg.poses])
 
-    def _on_graph(self, view: AgentView, msg: Any) -> None:
+    def _on_keyframes(self, view: AgentView, poses: list[Any]) -> None:
         view.keyframes = [
             [p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z,
              p.orientation.w]
-            for p in msg.poses
+            for p in poses
         ]  # fmt: skip
         self.emit({"type": "keyframes", "agent": view.name, "poses": view.keyframes}, None)
 
