@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 result = step.odometry
                 summary = summarize(
                     agent.name, step.keyframe_id, round(frame.stamp * 1e9), poses[step.keyframe_id], intrinsics,
-                    result.keypoints, result.points3d, np.asarray(result.descriptors),
+                    result.keypoints, result.points3d, np.asarray(result.descriptors), epoch=agent.writer.epoch,
                 )  # fmt: skip
                 agent.keyframe_stamps[step.keyframe_id] = frame.stamp
                 agent.summary_sizes.append(summary_bytes(summary))

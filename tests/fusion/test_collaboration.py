@@ -82,3 +82,17 @@ def test_a_restarted_peer_loses_its_closures_and_queued_keyframes() -> None:
     state = linker.peer("r2d2")
     assert state.restarts == 1 and state.epoch == 12 and state.closures.closures == []
     assert [s.epoch for s in linker.queue] == [12]
+
+
+def test_a_summary_that_names_no_run_is_still_recognised() -> None:
+    """Epoch 0 (a sender that does not say which run) is not taken for a restarted peer's old keyframe."""
+    linker = InterAgentLinker("c3po", CollaborationConfig(budget_ms=60_000.0))
+    recognizer = make_peer_recognizer(
+        LoopClosureConfig(), make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(), CAMERA.K).memory, CAMERA.K
+    )
+    empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8))
+    linker.peer("r2d2").epoch = 5
+    linker.queue_summary(summarize("r2d2", 1, 0, np.eye(4), CAMERA, *empty))
+    linker.queue_summary(summarize("r2d2", 2, 0, np.eye(4), CAMERA, *empty, epoch=5))
+    linker.step(recognizer, {})
+    assert linker.peer("r2d2").recognised == 2 and not linker.queue

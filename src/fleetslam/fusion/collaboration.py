@@ -214,8 +214,8 @@ class InterAgentLinker:
                     break
                 summary = self.queue.popleft()
             state = self.peer(summary.agent)
-            if summary.epoch != state.epoch:
-                continue  # from a run of the peer that has since restarted
+            if summary.epoch not in (0, state.epoch):
+                continue  # from a run of the peer that has since restarted (0: a sender that does not say)
             state.recognised += 1
             result = recognizer.recognize(summary)
             match = result.match
