@@ -73,15 +73,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--rate", type=float, default=15.0, help="frames per second")
     parser.add_argument("--wait-subscriber", type=float, default=0.0, metavar="S",
-                        help="first wait up to S seconds for a subscriber of the colour images")  # fmt: skip
+                        help="first wait up to S seconds for subscribers of the colour, depth and camera_info "
+                        "topics")  # fmt: skip
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     camera = SyntheticCamera(args.frames, args.rate)
     with Context(router=args.router) as context, Node("camera", context=context, namespace=args.namespace) as node:
         publisher = CameraNode(node, camera, base_camera=BASE_CAMERA)
         deadline = time.monotonic() + args.wait_subscriber
-        while publisher.rgb_pub.matched_subscriptions == 0 and time.monotonic() < deadline:
+        # Each topic is matched on its own: a reader's three subscriptions need not all be known at once.
+        streams = (publisher.rgb_pub, publisher.depth_pub, publisher.rgb_info_pub)
+        while any(p.matched_subscriptions == 0 for p in streams) and time.monotonic() < deadline:
             time.sleep(0.02)
+        if args.wait_subscriber > 0:
+            # A subscription shows in the graph a moment before the router routes to it: without this the first
+            # frame of a stream could miss a reader that was already listed.
+            time.sleep(0.5)
         publisher.run()
         # Images are large: let the last ones leave before the session closes.
         time.sleep(0.2)
