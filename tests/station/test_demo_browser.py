@@ -115,8 +115,11 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
                 )
 
             assert wait_until(lambda: sim_now() > 0, 90.0), "the demo's simulator never published ground truth"
+            # The console is a process of its own: the simulator may be running before it accepts connections,
+            # and the demo prints its URL (with the token) only then.
+            assert wait_until(lambda: "operator console: " in output.getvalue(), 60.0), output.getvalue()
             console = re.search(r"operator console: (\S+)", output.getvalue())
-            assert console is not None, output.getvalue()  # the URL with the console's token
+            assert console is not None, output.getvalue()
             page.goto(console.group(1), timeout=60000)
             page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
             page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)

@@ -1,8 +1,9 @@
 """`fleetslam demo`: the fleet on one machine, with the operator console and live network statistics.
 
 ``mode="sim"`` (the default): a router, the simulated plant with the robots driving autopilot routes, per robot a
-SLAM node and a mapping node (its own processes, its own namespace), a fleet map node fusing the robots' maps
-from their known start poses, and the operator console (a process of its own). ``mode="synthetic"``: agents that
+SLAM node and a mapping node (its own processes, its own namespace; the SLAM nodes find each other in their maps and
+place themselves in the fleet frame), a fleet map node fusing the robots' maps in that frame (or by their known start
+poses with ``known_starts``), and the operator console (a process of its own). ``mode="synthetic"``: agents that
 only exchange keyframe graphs (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for
 any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
