@@ -46,9 +46,8 @@ def _diagnostics(msg: Any) -> dict[str, float]:
 def test_a_node_fed_faster_than_it_works_drops_stale_frames_and_keeps_its_accuracy(
     drive: Path, make_context: Callable[..., Context]
 ) -> None:
+    from fleetslam.drivers.node import OPTICAL_FRAME, image_messages
     from fleetslam.msg.conversions import camera_info_msg, odometry_msg, pose_msg
-    from fleetslam.sim.node import OPTICAL_FRAME, image_msgs
-    from fleetslam.sim.plant import RGBDFrame as SimFrame
 
     source = open_source(drive)
     base_camera = np.loadtxt(drive / "base_camera.txt")
@@ -84,7 +83,7 @@ def test_a_node_fed_faster_than_it_works_drops_stale_frames_and_keeps_its_accura
         wheels = pose_msg(frame.prior @ invert(base_camera))
         odom_pub.publish(odometry_msg(wheels, frame_id="world", child_frame_id="base_link", stamp_ns=stamp_ns))
         info_pub.publish(camera_info_msg(intrinsics, frame_id=OPTICAL_FRAME, stamp_ns=stamp_ns))
-        rgb, depth = image_msgs(SimFrame(frame.rgb, frame.depth, frame.stamp, np.eye(4), intrinsics), OPTICAL_FRAME)
+        rgb, depth = image_messages(frame, OPTICAL_FRAME)
         rgb_pub.publish(rgb)
         depth_pub.publish(depth)
 

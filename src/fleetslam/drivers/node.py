@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,8 +26,19 @@ log = logging.getLogger(__name__)
 OPTICAL_FRAME = "camera_optical_frame"
 
 
-def image_messages(frame: RGBDFrame, frame_id: str) -> tuple[Any, Any]:
-    """(rgb8 Image, 32FC1 Image) of a frame."""
+class StampedRGBD(Protocol):
+    """What the camera topics carry of a frame (a dataset's, a driver's or the simulator's)."""
+
+    @property
+    def rgb(self) -> NDArray[np.uint8]: ...
+    @property
+    def depth(self) -> NDArray[Any]: ...
+    @property
+    def stamp(self) -> float: ...
+
+
+def image_messages(frame: StampedRGBD, frame_id: str) -> tuple[Any, Any]:
+    """(rgb8 Image, 32FC1 Image) of a frame (depth in metres, 0 = invalid), stamped with its capture time."""
     stamp_ns = round(frame.stamp * 1e9)
     return (
         image_msg(frame.rgb, "rgb8", frame_id=frame_id, stamp_ns=stamp_ns),

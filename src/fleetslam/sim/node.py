@@ -20,29 +20,20 @@ from dataclasses import dataclass
 from typing import Any
 
 from fleetslam import topics
+from fleetslam.drivers.node import OPTICAL_FRAME, image_messages
 from fleetslam.middleware import Context, Node, Publisher
-from fleetslam.msg.conversions import camera_info_msg, image_msg, odometry_msg, pose_msg, transform_msg
+from fleetslam.msg.conversions import camera_info_msg, odometry_msg, pose_msg, transform_msg
 from fleetslam.msg.typesys import get_type, stamp_from_ns
 from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.robot.node import BaseControllerNode
 from fleetslam.sim.config import SimConfig
-from fleetslam.sim.plant import Plant, RGBDFrame
+from fleetslam.sim.plant import Plant
 
 log = logging.getLogger(__name__)
 
-OPTICAL_FRAME = "camera_optical_frame"
 #: After an operator's `cmd_vel`, the autopilot leaves the robot to them for this long (s, simulated time).
 OPERATOR_TAKEOVER_S = 3.0
 WORLD_FRAME = "world"
-
-
-def image_msgs(frame: RGBDFrame, frame_id: str) -> tuple[Any, Any]:
-    """(rgb8 Image, 32FC1 Image) of a rendered frame."""
-    stamp_ns = round(frame.stamp * 1e9)
-    return (
-        image_msg(frame.rgb, "rgb8", frame_id=frame_id, stamp_ns=stamp_ns),
-        image_msg(frame.depth, "32FC1", frame_id=frame_id, stamp_ns=stamp_ns),
-    )
 
 
 def _publisher(node: Node, topic: topics.Topic) -> Publisher:
@@ -146,7 +137,7 @@ class SimNode:
     def _publish_cameras(self) -> None:
         for name, io in self.robots.items():
             frame = self.plant.render(name, width=self.width, height=self.height)
-            rgb, depth = image_msgs(frame, OPTICAL_FRAME)
+            rgb, depth = image_messages(frame, OPTICAL_FRAME)  # the simulator's cameras are drivers like any
             info = camera_info_msg(self.intrinsics, frame_id=OPTICAL_FRAME, stamp_ns=round(frame.stamp * 1e9))
             io.rgb_pub.publish(rgb)
             io.depth_pub.publish(depth)
