@@ -129,28 +129,29 @@ def test_monitor_keeps_each_robots_latest_slam_diagnostics_and_its_odometry(
     monitor = Monitor(make_context(), ["c3po", "r2d2"], tmp_path / "recording")
     slam = Node("slam", context=make_context("c3po"))
     diagnostics = slam.create_publisher("diagnostic_msgs/msg/DiagnosticArray", "slam/diagnostics", QoSProfile(depth=5))
-    truth = slam.create_publisher("nav_msgs/msg/Odometry", "ground_truth/odom", QoSProfile(depth=100))
-    assert wait_until(lambda: diagnostics.matched_subscriptions > 0 and truth.matched_subscriptions > 0, 10.0)
+    slam_odometry = slam.create_publisher("nav_msgs/msg/Odometry", "slam/odom", QoSProfile(depth=100))
+    assert wait_until(lambda: diagnostics.matched_subscriptions > 0 and slam_odometry.matched_subscriptions > 0, 10.0)
     for frame in range(1, 6):
         diagnostics.publish(_diagnostics("c3po", {**SLAM_VALUES, "frames_processed": str(frame)}))
     for i in range(30):
         pose = {"position": {"x": 0.1 * i}, "orientation": {"w": 1.0}}
         odometry = message_from_dict("nav_msgs/msg/Odometry", {"pose": {"pose": pose}})
         odometry.header = header("odom", 1_000_000_000 + i * 20_000_000)
-        truth.publish(odometry)
+        slam_odometry.publish(odometry)
     assert wait_until(lambda: monitor.slam_diagnostics().get("c3po", {}).get("frames_processed") == "5", 10.0)
-    assert wait_until(lambda: len(monitor.tracks["c3po/truth"]) == 30, 10.0)
+    assert wait_until(lambda: len(monitor.tracks["c3po/slam"]) == 30, 10.0)
     latest = monitor.slam_diagnostics()
     assert set(latest) == {"c3po"}  # r2d2's SLAM published nothing
     assert latest["c3po"]["keyframes"] == "203"
-    stamps, poses = monitor.trajectories()["c3po/truth"]
+    stamps, poses = monitor.trajectories()["c3po/slam"]
     assert stamps == pytest.approx([1.0 + 0.02 * i for i in range(30)])
     assert poses[:, 0, 3] == pytest.approx([0.1 * i for i in range(30)])
     assert np.allclose(poses[:, :3, :3], np.eye(3))
     assert monitor.trajectories()["r2d2/slam"][1].shape == (0, 4, 4)
     monitor.close()
     recorded = [m.topic for m in read_bag(tmp_path / "recording")]
-    assert recorded.count("/c3po/ground_truth/odom") == 30  # recorded as received
+    assert recorded.count("/c3po/slam/odom") == 30  # recorded as received
+    assert "c3po/truth" not in monitor.tracks  # the simulator writes the ground truth itself
 
 
 @pytest.mark.parametrize("frame_id", ["", "m", "map", "odom", "world_frame"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,17 +17,19 @@ from fleetslam.msg.typesys import get_type, ns_from_stamp
 from fleetslam.sim.config import RobotPlacement, SimConfig
 from fleetslam.sim.node import SimNode
 from fleetslam.sim.plant import Plant
+from fleetslam.trajectory import read_tum
 
 from ..support import wait_until
 
 
-def test_sim_node_publishes_sensors_and_obeys_cmd_vel(make_context: Callable[..., Context]) -> None:
+def test_sim_node_publishes_sensors_and_obeys_cmd_vel(make_context: Callable[..., Context], tmp_path: Path) -> None:
     received: dict[str, list[Any]] = {k: [] for k in ("rgb", "depth", "info", "truth", "clock", "odom", "tf_static")}
     with (
         Plant(SimConfig(), [RobotPlacement(name="c3po", x=-12.0, y=-7.5, yaw=0.0)], controllers=False) as plant,
         Node("listener", context=make_context()) as listener,
     ):
-        sim = SimNode(make_context(), plant, camera_hz=10.0, width=160, height=120, rate=1.0)
+        sim = SimNode(make_context(), plant, camera_hz=10.0, width=160, height=120, rate=1.0,
+                      ground_truth_dir=tmp_path / "truth")  # fmt: skip
         for key, type_name, topic in (
             ("rgb", "sensor_msgs/msg/Image", "/c3po/camera/rgb/image_raw"),
             ("depth", "sensor_msgs/msg/Image", "/c3po/camera/depth/image_raw"),
@@ -71,6 +74,13 @@ def test_sim_node_publishes_sensors_and_obeys_cmd_vel(make_context: Callable[...
     static = received["tf_static"][-1].transforms[0]
     assert (static.header.frame_id, static.child_frame_id) == ("base_link", "camera_optical_frame")
     assert static.transform.translation.z == pytest.approx(0.5, abs=0.01)  # the model's 0.5 m mount (exact here)
+    written = read_tum(tmp_path / "truth" / "c3po.txt")  # every published sample, also written to the file
+    assert np.diff(written.stamps) == pytest.approx(0.02, abs=1e-6) and written.stamps[0] == pytest.approx(0.0)
+    by_stamp = {round(t, 3): pose for t, pose in zip(written.stamps, written.poses, strict=True)}
+    for message in received["truth"]:
+        pose = by_stamp[round(ns_from_stamp(message.header.stamp) / 1e9, 3)]
+        p = message.pose.pose.position
+        assert pose[:3, 3] == pytest.approx([p.x, p.y, p.z], abs=1e-6)
 
 
 def test_operator_takes_over_from_the_autopilot(make_context: Callable[..., Context]) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fleetslam.errors import ConfigError
@@ -65,6 +66,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--laps", action="store_true", help="drive a closed autopilot route lap after lap instead of once"
     )
     run_parser.add_argument("--duration", type=float, default=None, help="stop after this much simulated time")
+    run_parser.add_argument(
+        "--ground-truth", default=None, metavar="DIR",
+        help="also write each robot's ground truth (base_link in world, TUM) to DIR/<robot>.txt",
+    )  # fmt: skip
     _add_common(run_parser)
     run_parser.set_defaults(func=run_node)
 
@@ -107,4 +112,5 @@ def run_node(args: argparse.Namespace) -> int:
         autopilot=args.autopilot,
         laps=args.laps,
         duration=args.duration,
+        ground_truth_dir=Path(args.ground_truth) if args.ground_truth else None,
     )

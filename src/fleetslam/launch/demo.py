@@ -26,6 +26,9 @@ import time
 from pathlib import Path
 from typing import TextIO
 
+import numpy as np
+from numpy.typing import NDArray
+
 from fleetslam.launch.demo_monitor import (
     Monitor,
     OdometryTrack,
@@ -34,6 +37,7 @@ from fleetslam.launch.demo_monitor import (
     slam_values,
 )
 from fleetslam.launch.demo_plan import (
+    GROUND_TRUTH_BASE_DIR,
     ROBOT_CENTERS,
     agent_processes,
     fleet_env,
@@ -187,7 +191,8 @@ def run_demo(
         rows = monitor.table.rows()
     result = DemoResult(out_dir, elapsed, rows, monitor.history, processes=usage)
     if mode == "sim":
-        result.ate = write_trajectories(monitor.trajectories(), robots, out_dir, extrinsics)
+        tracks = {**monitor.trajectories(), **simulator_ground_truth(out_dir / GROUND_TRUTH_BASE_DIR, robots)}
+        result.ate = write_trajectories(tracks, robots, out_dir, extrinsics)
         result.plots.append(plot_trajectories(robots, out_dir))
         diagnostics = monitor.slam_diagnostics()
         result.slam = {robot: diagnostics.get(robot) for robot in robots}
@@ -195,6 +200,25 @@ def run_demo(
         result.true_placements = true_placements(out_dir)
     write_results(result)
     return result
+
+
+def simulator_ground_truth(
+    folder: Path, robots: list[str]
+) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Stamps and 4×4 base_link poses per ``<robot>/truth``, as the simulator wrote them (``sim run
+    --ground-truth``); a robot whose file is missing or unreadable is left out, with a warning."""
+    from fleetslam.errors import DatasetError
+    from fleetslam.trajectory import read_tum
+
+    out = {}
+    for robot in robots:
+        try:
+            truth = read_tum(folder / f"{robot}.txt")
+        except DatasetError as err:
+            log.warning("no ground truth for %s: %s", robot, err)
+            continue
+        out[f"{robot}/truth"] = (truth.stamps, truth.poses)
+    return out
 
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:

@@ -96,6 +96,9 @@ def start_poses(robots: list[str], config: Any = None) -> tuple[dict[str, list[f
     return poses, extrinsics
 
 
+#: Where the simulator writes each robot's ground truth (base_link in world, TUM) in the results folder: the
+#: evaluation reads it there instead of taking 50 samples a second per robot off the network.
+GROUND_TRUTH_BASE_DIR = "ground_truth/base_link"
 #: The map nodes' numba kernels on one thread: with seven processes on two cores, a parallel region waits for a
 #: thread that another process holds (a 2.5 ms scan took 5-50 ms), and OpenMP's idle threads spin.
 ONE_NUMBA_THREAD = {"NUMBA_NUM_THREADS": "1"}
@@ -165,7 +168,8 @@ def sim_processes(
                                  argv=fleetslam_argv("sim", "run", "--config", str(out_dir / "sim.yaml"),
                                                  "--robots", ",".join(robots), "--camera-hz",
                                                  f"{camera_hz:g}", "--resolution", resolution, "--autopilot", route,
-                                                 "--laps"),
+                                                 "--laps", "--ground-truth",
+                                                 str(out_dir / GROUND_TRUTH_BASE_DIR)),
                                  environment={**station_env, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
                                  restart=RestartPolicy()))  # fmt: skip
     return processes, extrinsics
