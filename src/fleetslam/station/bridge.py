@@ -22,9 +22,15 @@ from fleetslam import topics
 from fleetslam.errors import MessageError
 from fleetslam.middleware import Context, Node
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.msg.conversions import depth_from_image, image_to_array, pointcloud2_xyz, rgb_from_image
+from fleetslam.msg.conversions import (
+    depth_from_image,
+    image_to_array,
+    pointcloud2_xyz,
+    rgb_from_image,
+    transform_matrix,
+)
 from fleetslam.msg.typesys import deserialize, get_type
-from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
+from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, camera_heading, yaw_from_quaternion
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +53,8 @@ class AgentView:
     last_pose: dict[str, float] = field(default_factory=dict)
     """When each pose source was last sent to the browsers (monotonic s)."""
     image_seq: int = 0
+    placement: dict[str, Any] | None = None
+    """The latest ``placement`` message (its ``fleet → <agent>/map``), once the agent's SLAM placed it."""
 
 
 class StationBridge:
@@ -122,6 +130,7 @@ class StationBridge:
             # station otherwise deserialised every frame of every camera, ~8 MB/s in the demo, for nothing).
             sub(image.type, image.of(name), self._image_callback(view, kind), image.qos(depth=1, best_effort=True),
                 raw=True)  # fmt: skip
+        self._follow_placement(view)
         # Depth 10, the middleware's default that the console has always published with.
         cmd_vel = topics.CMD_VEL
         self._cmd_publishers[name] = self.node.create_publisher(cmd_vel.type, cmd_vel.of(name), cmd_vel.qos(depth=10))
@@ -157,7 +166,9 @@ class StationBridge:
 
     def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        pose = {"x": p.x, "y": p.y, "z": p.z, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w)}
+        # SLAM's pose is the camera's (optical frame: z ahead), the others the robot's base (x ahead).
+        heading = camera_heading if source == "slam" else yaw_from_quaternion
+        pose = {"x": p.x, "y": p.y, "z": p.z, "yaw": heading(q.x, q.y, q.z, q.w)}
         view.poses[source] = pose
         path = view.paths.setdefault(source, [])
         if not path or (path[-1][0] - p.x) ** 2 + (path[-1][1] - p.y) ** 2 > 0.0025:
@@ -202,6 +213,27 @@ class StationBridge:
              "data": base64.b64encode(data).decode()},
             view.name,
         )  # fmt: skip
+
+    # -- frames: where each agent's map frame lies in the fleet frame ------------------------------------------
+    def _follow_placement(self, view: AgentView) -> None:
+        """The agent's ``slam/fleet_transform`` (latched: a console started later gets it at once)."""
+        topic = topics.FLEET_TRANSFORM
+        self.node.create_subscription(topic.type, topic.of(view.name), lambda m: self._on_placement(view, m),
+                                      topic.qos(depth=1))  # fmt: skip
+
+    def _on_placement(self, view: AgentView, msg: Any) -> None:
+        """Send the browsers ``fleet → <agent>/map``: the page draws the agent's map, path and marker through it."""
+        try:
+            matrix = transform_matrix(msg.transform)
+        except (ValueError, MessageError) as err:
+            log.warning("%s fleet transform: %s", view.name, err)
+            return
+        if not np.isfinite(matrix).all():
+            log.warning("%s fleet transform is not finite: ignored", view.name)
+            return
+        view.placement = {"type": "placement", "agent": view.name, "frame": str(msg.header.frame_id),
+                          "child": str(msg.child_frame_id), "matrix": matrix.reshape(-1).tolist()}  # fmt: skip
+        self.emit(view.placement, None)
 
     def _on_statistics(self, msg: Any) -> None:
         with self._lock:
@@ -252,6 +284,8 @@ class StationBridge:
                 out.append({"type": "path", "agent": view.name, "source": source, "points": points})
             if view.keyframes:
                 out.append({"type": "keyframes", "agent": view.name, "poses": view.keyframes})
+            if view.placement is not None:
+                out.append(view.placement)
         return out
 
     def close(self) -> None:

@@ -6,6 +6,8 @@ server → browser
   ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
   ``pose`` {agent, source, x, y, z, yaw}; ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
   ``image`` {agent, kind: rgb|depth, mime, data (base64), seq}; ``stats`` {rows}; ``pong`` {t};
+  ``placement`` {agent, frame, child, matrix (4×4 row-major ``T_fleet_map``)}: the agent's map frame in the fleet
+  frame; its map, path, keyframes and ``slam`` pose are in its map frame (its own until placed);
   ``estop`` {agent, engaged, ok, message}
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
@@ -127,3 +129,8 @@ def _clamp(value: float, limit: float) -> float:
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Heading of a ROS quaternion."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def camera_heading(x: float, y: float, z: float, w: float) -> float:
+    """Heading of a camera (optical frame: z ahead, y down) given by a ROS quaternion: the yaw of its z axis."""
+    return math.atan2(2.0 * (y * z - w * x), 2.0 * (x * z + w * y))

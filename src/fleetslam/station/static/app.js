@@ -73,11 +73,96 @@ function view(agent) {
   agentViews.set(agent, v);
   return v;
 }
+// ---------------------------------------------------------------- frames
+// An agent's map, SLAM path, keyframes and marker are in its map frame: they are drawn in one group per agent, placed
+// in the fleet frame by the agent's `fleet → <agent>/map` once its SLAM has placed it ("placement" messages), and
+// until then beside what is in the fleet frame, labelled as its own. The fleet map is in the fleet frame (the
+// scene's). Wheel odometry (its own odom frame) stands in for an agent without SLAM; ground truth (the simulator's
+// world frame, which the fleet is not told) is not drawn.
+const UNPLACED_OFFSET_M = 40;
+state.placements = {};
+const frames = new Map();
+function frameOf(agent) {
+  if (agent === "fleet") return scene;
+  let frame = frames.get(agent);
+  if (frame) return frame;
+  frame = new THREE.Group();
+  frame.name = agent;
+  frame.matrixAutoUpdate = false;
+  frames.set(agent, frame);
+  scene.add(frame);
+  placeFrames();
+  return frame;
+}
+function frameLabel(text, color) {
+  const canvas = document.createElement("canvas");
+  canvas.width = 512; canvas.height = 64;
+  const ctx = canvas.getContext("2d");
+  ctx.font = "bold 30px sans-serif";
+  ctx.fillStyle = color;
+  ctx.textAlign = "center";
+  ctx.fillText(text, 256, 42, 500);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false }));
+  sprite.scale.set(6, 0.75, 1);
+  sprite.position.set(0, 0, 2.5);
+  sprite.userData.text = text;
+  return sprite;
+}
+// Placed frames by their placement; the others side by side along -y, beside the fleet frame once anyone is in it.
+function placeFrames() {
+  const known = [...new Set([...state.agents, ...frames.keys()])];
+  const unplaced = known.filter((a) => !state.placements[a]);
+  const shift = unplaced.length < known.length ? 1 : 0;
+  for (const [agent, frame] of frames) {
+    const placed = state.placements[agent];
+    if (placed) frame.matrix.set(...placed); // row-major, as Matrix4.set takes it
+    else frame.matrix.makeTranslation(0, -UNPLACED_OFFSET_M * (unplaced.indexOf(agent) + shift), 0);
+    frame.matrixWorldNeedsUpdate = true;
+    const text = placed ? agent : `${agent} (own frame, not merged)`;
+    if (frame.userData.label?.userData.text !== text) {
+      if (frame.userData.label) { frame.userData.label.removeFromParent(); frame.userData.label.material.map.dispose(); frame.userData.label.material.dispose(); }
+      frame.userData.label = frameLabel(text, agentColor(agent));
+      frame.add(frame.userData.label);
+    }
+  }
+  state.sceneChanged = true;
+}
+function onPlacement(msg) {
+  if (msg.agent === "fleet" || !Array.isArray(msg.matrix) || msg.matrix.length !== 16) return;
+  state.placements[msg.agent] = msg.matrix;
+  frameOf(msg.agent);
+  placeFrames();
+}
+// SLAM's pose and path where there is SLAM, else the wheel odometry's; never the ground truth (another frame).
+function drawnSource(agent, source) {
+  const v = view(agent);
+  if (source === "slam" && !v.hasSlam) {
+    v.hasSlam = true;
+    removeLine(v, "odom"); removeLine(v, "trail-odom"); v.trailsChanged?.delete("odom");
+    if (v.poses.odom) { v.poses.odom.removeFromParent(); delete v.poses.odom; }
+  }
+  return source === "slam" || (source === "odom" && !v.hasSlam);
+}
+// Where a point of an agent's map frame is drawn (tests): its frame's label, placement and world position.
+state.frameOf = (agent, point = [0, 0, 0]) => {
+  const frame = frames.get(agent);
+  if (!frame) return null;
+  frame.updateMatrixWorld(true);
+  const v = view(agent);
+  const p = new THREE.Vector3(...point).applyMatrix4(frame.matrixWorld);
+  const marker = Object.values(v.poses)[0];
+  return {
+    label: frame.userData.label?.userData.text, placed: !!state.placements[agent], world: [p.x, p.y, p.z],
+    cloudInFrame: !!v.cloud && v.cloud.parent === frame,
+    marker: marker && marker.parent === frame ? marker.getWorldPosition(new THREE.Vector3()).toArray() : null,
+  };
+};
+
 // Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
 // a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
 // lit triangles each took most of a core at ten frames a second; a sprite is one quad.
 function rebuildVoxels(agent, v) {
-  if (v.cloud) { scene.remove(v.cloud); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
+  if (v.cloud) { v.cloud.removeFromParent(); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
   const n = v.voxels.size;
   const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
   const c = new THREE.Color();
@@ -97,7 +182,7 @@ function rebuildVoxels(agent, v) {
     transparent: fleet, opacity: fleet ? 0.35 : 1, depthWrite: !fleet,
   });
   const points = new THREE.Points(geometry, material);
-  scene.add(points);
+  frameOf(agent).add(points);
   v.cloud = points;
   v.dirty = false;
 }
@@ -122,18 +207,19 @@ function lineFor(points, color, dashed) {
 function removeLine(v, name) {
   const line = v.paths[name];
   if (!line) return;
-  scene.remove(line);
+  line.removeFromParent();
   line.geometry.dispose();
   line.material.dispose();
   delete v.paths[name];
 }
 function onPath(msg) {
   const v = view(msg.agent);
+  if (!drawnSource(msg.agent, msg.source)) return;
   removeLine(v, msg.source);
   const color = new THREE.Color(agentColor(msg.agent));
   if (msg.source === "truth") color.multiplyScalar(0.55);
   v.paths[msg.source] = lineFor(msg.points, color, msg.source === "truth");
-  scene.add(v.paths[msg.source]);
+  frameOf(msg.agent).add(v.paths[msg.source]);
 }
 function robotMarker(color) {
   const group = new THREE.Group();
@@ -149,10 +235,11 @@ function robotMarker(color) {
 function onPose(msg) {
   const v = view(msg.agent);
   const source = msg.source;
+  if (!drawnSource(msg.agent, source)) return;
   if (!v.poses[source]) {
     v.poses[source] = robotMarker(agentColor(msg.agent));
     if (source === "truth") v.poses[source].children.forEach((c) => { c.material.transparent = true; c.material.opacity = 0.35; });
-    scene.add(v.poses[source]);
+    frameOf(msg.agent).add(v.poses[source]);
     v.trail = v.trail || {};
   }
   v.poses[source].position.set(msg.x, msg.y, msg.z);
@@ -179,7 +266,7 @@ function redrawTrails(now) {
       const color = new THREE.Color(agentColor(agent));
       if (source === "truth") color.multiplyScalar(0.55);
       v.paths["trail-" + source] = lineFor(v.trail[source], color, source === "truth");
-      scene.add(v.paths["trail-" + source]);
+      frameOf(agent).add(v.paths["trail-" + source]);
     }
     v.trailsChanged.clear();
     v.trailsDrawn = now;
@@ -196,7 +283,7 @@ const FRUSTUM = (() => {
 // is): a graph of hundreds of keyframes arrives every second.
 function onKeyframes(msg) {
   const v = view(msg.agent);
-  if (v.keyframes) { scene.remove(v.keyframes); v.keyframes.geometry.dispose(); v.keyframes.material.dispose(); }
+  if (v.keyframes) { v.keyframes.removeFromParent(); v.keyframes.geometry.dispose(); v.keyframes.material.dispose(); }
   const positions = new Float32Array(msg.poses.length * FRUSTUM.length * 3);
   const q = new THREE.Quaternion(), p = new THREE.Vector3();
   let i = 0;
@@ -211,7 +298,7 @@ function onKeyframes(msg) {
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
   const material = new THREE.LineBasicMaterial({ color: agentColor(msg.agent), transparent: true, opacity: 0.7 });
   v.keyframes = new THREE.LineSegments(geometry, material);
-  scene.add(v.keyframes);
+  frameOf(msg.agent).add(v.keyframes);
 }
 // The 3D view is drawn when something in it changed (map, poses, paths, keyframes, the viewpoint), at most five
 // times a second: the data arrives about once a second (poses ten times), and on a machine without a GPU (software
@@ -255,7 +342,7 @@ function renderAgents() {
   }
   document.getElementById("legend").innerHTML = state.agents
     .map((a) => `<span style="color:${agentColor(a)}">■</span> ${a}`).join("&nbsp;&nbsp;") +
-    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; solid: SLAM/odometry, dashed: ground truth";
+    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; in the fleet frame; an agent not merged yet in its own, beside it";
 }
 function select(name) {
   state.selected = name;
@@ -384,11 +471,13 @@ function connect() {
         state.agents = msg.agents;
         if (!state.selected && state.agents.length) select(state.agents[0]);
         renderAgents();
+        placeFrames();
         break;
       case "voxels": onVoxels(msg); state.sceneChanged = true; break;
       case "pose": onPose(msg); state.sceneChanged = true; break;
       case "path": onPath(msg); state.sceneChanged = true; break;
       case "keyframes": onKeyframes(msg); state.sceneChanged = true; break;
+      case "placement": onPlacement(msg); break;
       case "image": onImage(msg); break;
       case "stats": onStats(msg); break;
       case "pong":
