@@ -1,8 +1,6 @@
 import numpy as np
-import pytest
 
-from fleetslam.geometry import matrix_to_quat, pose_from_xyz_rpy
-from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, camera_heading, yaw_from_quaternion
+from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
 
 
 def test_voxel_diff_sends_only_changes() -> None:
@@ -42,13 +40,3 @@ def test_yaw() -> None:
         yaw_from_quaternion(0, 0, np.sin(0.4), np.cos(0.4)) == np.float64(0.8)
         or abs(yaw_from_quaternion(0, 0, np.sin(0.4), np.cos(0.4)) - 0.8) < 1e-12  # float64 atan2 round-off
     )
-
-
-def test_a_camera_heading_is_where_its_optical_axis_points() -> None:
-    for heading in (0.0, 0.7, 2.5, -1.9):
-        # A robot heading this way, its camera looking ahead (optical z ahead, x right, y down), tilted 10° down.
-        base = pose_from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, heading)
-        optical = pose_from_xyz_rpy(0.1, 0.0, 0.3, -np.pi / 2 - np.radians(10.0), 0.0, -np.pi / 2)
-        qx, qy, qz, qw = matrix_to_quat((base @ optical)[:3, :3])
-        assert camera_heading(qx, qy, qz, qw) == pytest.approx(heading)
-        assert abs(yaw_from_quaternion(qx, qy, qz, qw) - heading) > 1.0  # a base's yaw formula is a quarter off

@@ -4,10 +4,12 @@ Browser ⇄ server messages are JSON objects with a ``type``:
 
 server → browser
   ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
-  ``pose`` {agent, source, x, y, z, yaw}; ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
+  ``pose`` {agent, source, x, y, z, yaw, q: [x, y, z, w]} (the robot's base; ``slam``: in its map frame, from the
+  camera's pose); ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
   ``image`` {agent, kind: rgb|depth, mime, data (base64), seq}; ``stats`` {rows}; ``pong`` {t};
-  ``placement`` {agent, frame, child, matrix (4×4 row-major ``T_fleet_map``)}: the agent's map frame in the fleet
-  frame; its map, path, keyframes and ``slam`` pose are in its map frame (its own until placed);
+  ``frame`` {agent, placement: ``T_fleet_map``, mounting: ``T_base_camera`` (4×4 row-major, null until known)}: the
+  agent's map, path, keyframes and ``slam`` pose are in its map frame (its camera's at start), placed in the fleet
+  frame by ``placement`` (its own frame until then) and drawn upright through ``mounting``;
   ``estop`` {agent, engaged, ok, message}
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
@@ -129,8 +131,3 @@ def _clamp(value: float, limit: float) -> float:
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Heading of a ROS quaternion."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def camera_heading(x: float, y: float, z: float, w: float) -> float:
-    """Heading of a camera (optical frame: z ahead, y down) given by a ROS quaternion: the yaw of its z axis."""
-    return math.atan2(2.0 * (y * z - w * x), 2.0 * (x * z + w * y))

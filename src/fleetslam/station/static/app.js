@@ -74,16 +74,21 @@ function view(agent) {
   return v;
 }
 // ---------------------------------------------------------------- frames
-// An agent's map, SLAM path, keyframes and marker are in its map frame: they are drawn in one group per agent, placed
-// in the fleet frame by the agent's `fleet → <agent>/map` once its SLAM has placed it ("placement" messages), and
-// until then beside what is in the fleet frame, labelled as its own. The fleet map is in the fleet frame (the
-// scene's). Wheel odometry (its own odom frame) stands in for an agent without SLAM; ground truth (the simulator's
-// world frame, which the fleet is not told) is not drawn.
+// An agent's map, SLAM path, keyframes and marker are in its map frame (its camera's at start: z ahead, y down): they
+// are drawn in one group per agent, placed in the fleet frame by the agent's `fleet → <agent>/map` once its SLAM has
+// placed it ("frame" messages), and until then beside what is in the fleet frame, labelled as its own. The fleet map
+// is in the fleet frame. Frames are drawn upright through the cameras' mountings (T_base_camera): the fleet frame as
+// seen from the base, at its start, of the first placed agent whose mounting is known; an unplaced agent's from its
+// own. Wheel odometry (its odom frame) stands in for an agent without SLAM; ground truth (the simulator's world
+// frame, which the fleet is not told) is not drawn.
 const UNPLACED_OFFSET_M = 40;
-state.placements = {};
+state.frames = {};
 const frames = new Map();
+const fleetRoot = new THREE.Group();
+fleetRoot.matrixAutoUpdate = false;
+scene.add(fleetRoot);
 function frameOf(agent) {
-  if (agent === "fleet") return scene;
+  if (agent === "fleet") return fleetRoot;
   let frame = frames.get(agent);
   if (frame) return frame;
   frame = new THREE.Group();
@@ -104,34 +109,52 @@ function frameLabel(text, color) {
   ctx.fillText(text, 256, 42, 500);
   const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false }));
   sprite.scale.set(6, 0.75, 1);
-  sprite.position.set(0, 0, 2.5);
   sprite.userData.text = text;
   return sprite;
 }
-// Placed frames by their placement; the others side by side along -y, beside the fleet frame once anyone is in it.
+const rowMajor = (m) => new THREE.Matrix4().set(...m);
 function placeFrames() {
-  const known = [...new Set([...state.agents, ...frames.keys()])];
-  const unplaced = known.filter((a) => !state.placements[a]);
-  const shift = unplaced.length < known.length ? 1 : 0;
+  const known = [...new Set([...state.agents, ...frames.keys()])].sort();
+  const placement = (a) => state.frames[a]?.placement, mounting = (a) => state.frames[a]?.mounting;
+  const upright = known.find((a) => placement(a) && mounting(a));
+  fleetRoot.matrix.identity();
+  if (upright) fleetRoot.matrix.copy(rowMajor(mounting(upright))).multiply(rowMajor(placement(upright)).invert());
+  fleetRoot.matrixWorldNeedsUpdate = true;
+  const unplaced = known.filter((a) => !placement(a));
+  const shift = unplaced.length < known.length ? 1 : 0; // beside the fleet frame once anyone is in it
   for (const [agent, frame] of frames) {
-    const placed = state.placements[agent];
-    if (placed) frame.matrix.set(...placed); // row-major, as Matrix4.set takes it
-    else frame.matrix.makeTranslation(0, -UNPLACED_OFFSET_M * (unplaced.indexOf(agent) + shift), 0);
-    frame.matrixWorldNeedsUpdate = true;
-    const text = placed ? agent : `${agent} (own frame, not merged)`;
-    if (frame.userData.label?.userData.text !== text) {
-      if (frame.userData.label) { frame.userData.label.removeFromParent(); frame.userData.label.material.map.dispose(); frame.userData.label.material.dispose(); }
-      frame.userData.label = frameLabel(text, agentColor(agent));
-      frame.add(frame.userData.label);
+    if (placement(agent)) {
+      if (frame.parent !== fleetRoot) fleetRoot.add(frame);
+      frame.matrix.copy(rowMajor(placement(agent)));
+    } else {
+      if (frame.parent !== scene) scene.add(frame);
+      frame.matrix.makeTranslation(0, -UNPLACED_OFFSET_M * (unplaced.indexOf(agent) + shift), 0);
+      if (mounting(agent)) frame.matrix.multiply(rowMajor(mounting(agent)));
     }
+    frame.matrixWorldNeedsUpdate = true;
+    const text = placement(agent) ? agent : `${agent} (own frame, not merged)`;
+    let label = frame.userData.label;
+    if (label?.userData.text !== text) {
+      if (label) { label.removeFromParent(); label.material.map.dispose(); label.material.dispose(); }
+      label = frame.userData.label = frameLabel(text, agentColor(agent));
+      scene.add(label);
+    }
+    frame.updateMatrixWorld(true);
+    label.position.setFromMatrixPosition(frame.matrixWorld).add(new THREE.Vector3(0, 0, 2.5));
   }
   state.sceneChanged = true;
 }
-function onPlacement(msg) {
-  if (msg.agent === "fleet" || !Array.isArray(msg.matrix) || msg.matrix.length !== 16) return;
-  state.placements[msg.agent] = msg.matrix;
+function onFrame(msg) {
+  if (msg.agent === "fleet") return;
+  const matrix = (m) => (Array.isArray(m) && m.length === 16 ? m : null);
+  const before = state.frames[msg.agent] || {};
+  state.frames[msg.agent] = { placement: matrix(msg.placement), mounting: matrix(msg.mounting) };
   frameOf(msg.agent);
   placeFrames();
+  const now = state.frames[msg.agent];
+  if (!before.placement !== !now.placement || !before.mounting !== !now.mounting) { // "up" changed: recolour
+    for (const v of agentViews.values()) v.dirty = v.voxels.size > 0;
+  }
 }
 // SLAM's pose and path where there is SLAM, else the wheel odometry's; never the ground truth (another frame).
 function drawnSource(agent, source) {
@@ -147,14 +170,15 @@ function drawnSource(agent, source) {
 state.frameOf = (agent, point = [0, 0, 0]) => {
   const frame = frames.get(agent);
   if (!frame) return null;
-  frame.updateMatrixWorld(true);
+  scene.updateMatrixWorld(true);
   const v = view(agent);
   const p = new THREE.Vector3(...point).applyMatrix4(frame.matrixWorld);
   const marker = Object.values(v.poses)[0];
   return {
-    label: frame.userData.label?.userData.text, placed: !!state.placements[agent], world: [p.x, p.y, p.z],
+    label: frame.userData.label?.userData.text, placed: !!state.frames[agent]?.placement, world: [p.x, p.y, p.z],
     cloudInFrame: !!v.cloud && v.cloud.parent === frame,
     marker: marker && marker.parent === frame ? marker.getWorldPosition(new THREE.Vector3()).toArray() : null,
+    markerUp: marker ? new THREE.Vector3(0, 0, 1).applyQuaternion(marker.getWorldQuaternion(new THREE.Quaternion())).toArray() : null,
   };
 };
 
@@ -166,10 +190,13 @@ function rebuildVoxels(agent, v) {
   const n = v.voxels.size;
   const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
   const c = new THREE.Color();
+  const frame = frameOf(agent);
+  frame.updateWorldMatrix(true, false);
+  const e = frame.matrixWorld.elements; // coloured by height as drawn (a map frame's z may be ahead, not up)
   let i = 0;
   for (const [x, y, z] of v.voxels.values()) {
     positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
-    heightColor(z, c);
+    heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], c);
     colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
     i += 3;
   }
@@ -243,7 +270,8 @@ function onPose(msg) {
     v.trail = v.trail || {};
   }
   v.poses[source].position.set(msg.x, msg.y, msg.z);
-  v.poses[source].rotation.set(0, 0, msg.yaw);
+  if (msg.q) v.poses[source].quaternion.set(...msg.q);
+  else v.poses[source].rotation.set(0, 0, msg.yaw);
   v.trail = v.trail || {};
   const trail = (v.trail[source] = v.trail[source] || []);
   const last = trail[trail.length - 1];
@@ -477,7 +505,7 @@ function connect() {
       case "pose": onPose(msg); state.sceneChanged = true; break;
       case "path": onPath(msg); state.sceneChanged = true; break;
       case "keyframes": onKeyframes(msg); state.sceneChanged = true; break;
-      case "placement": onPlacement(msg); break;
+      case "frame": onFrame(msg); break;
       case "image": onImage(msg); break;
       case "stats": onStats(msg); break;
       case "pong":
