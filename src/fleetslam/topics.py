@@ -106,7 +106,7 @@ DEPTH_IMAGE = Topic("camera/depth/image_raw", "sensor_msgs/msg/Image", 2, conten
 CAMERA_INFO = Topic("camera/rgb/camera_info", "sensor_msgs/msg/CameraInfo", 2, flow="camera/sim → slam")
 DEPTH_CAMERA_INFO = Topic("camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", 2, flow="camera/sim → anyone")
 TF_STATIC = Topic("tf_static", "tf2_msgs/msg/TFMessage", 1, "transient_local", content="base_link → camera",
-                  flow="camera/sim → slam")  # fmt: skip
+                  flow="camera/sim → slam, station")  # fmt: skip
 GROUND_TRUTH_ODOM = Topic("ground_truth/odom", "nav_msgs/msg/Odometry", 10, content="base_link in world",
                           flow="sim only → evaluation, station")  # fmt: skip
 SLAM_ODOM = Topic("slam/odom", "nav_msgs/msg/Odometry", 5, content="camera in map, every frame",
@@ -130,7 +130,7 @@ FLEET_TRANSFORM = Topic(
     1,
     "transient_local",
     content="fleet → <agent>/map once placed, on change",
-    flow="slam → other agents, fleet map",
+    flow="slam → other agents, fleet map, station",
 )
 FLEET_POSE = Topic("slam/fleet_pose", "geometry_msgs/msg/PoseStamped", 5,
                    content="camera in the fleet frame, every frame once the agent is placed in it",

@@ -7,9 +7,11 @@ poses with ``known_starts``), and the operator console (a process of its own). `
 only exchange keyframe graphs (``fleetslam.launch.example_agent``), the seed's network experiment, light enough for
 any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
-truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's
-latest ``slam/diagnostics``), ``processes.json`` (CPU and peak memory of every process over the run),
-``report.md``/``report.html`` (with each robot's SLAM figures from its latest ``slam/diagnostics``) and plots.
+truth (TUM; the placed robots' also in the fleet frame, ``fleet_trajectories/``), a recording of the key topics
+(rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's latest ``slam/diagnostics``), ``processes.json``
+(CPU and peak memory of every process over the run), ``report.md``/``report.html`` (with each robot's SLAM figures
+from its latest ``slam/diagnostics``, per agent pair the first merge and the closures accepted and rejected, per agent
+the bytes exchanged per keyframe, the fleet ATE) and plots.
 
 The jobs live in one module each: the process plan (:mod:`~fleetslam.launch.demo_plan`), the monitor
 (:mod:`~fleetslam.launch.demo_monitor`) and the results and report (:mod:`~fleetslam.launch.demo_report`); this
@@ -55,6 +57,7 @@ from fleetslam.launch.demo_report import (
     render_html,
     render_markdown,
     true_placements,
+    write_fleet_trajectories,
     write_results,
     write_trajectories,
 )
@@ -84,6 +87,7 @@ __all__ = [
     "slam_values",
     "start_poses",
     "station_process",
+    "write_fleet_trajectories",
     "write_results",
     "write_trajectories",
 ]
@@ -197,7 +201,10 @@ def run_demo(
         diagnostics = monitor.slam_diagnostics()
         result.slam = {robot: diagnostics.get(robot) for robot in robots}
         result.placements = monitor.placements()
+        result.placed_stamps = monitor.placement_stamps()
         result.true_placements = true_placements(out_dir)
+        if result.placements:
+            result.fleet = write_fleet_trajectories(out_dir, result.placements, result.placed_stamps)
     write_results(result)
     return result
 

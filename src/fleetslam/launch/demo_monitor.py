@@ -109,6 +109,8 @@ class Monitor:
         self._placements: dict[str, tuple[float, bytes]] = {}
         """Per robot: when (s after the monitor started) its SLAM first placed it in the fleet frame, and its latest
         ``slam/fleet_transform``."""
+        self._placed_stamps: dict[str, bytes] = {}
+        """Per robot, its first ``slam/fleet_transform`` (its stamp: the frame it was placed at)."""
         self.lock = threading.Lock()
         self.writer = BagWriter(recording) if recording is not None else None
         self.node.create_subscription(
@@ -137,7 +139,8 @@ class Monitor:
         with self.lock:
             row = self.table.update(msg)
             self.history.append({"t": time.time(), "agent": row.agent, "topic": row.topic,
-                                 "subscriber": row.node_sub, "bandwidth_bps": row.bandwidth_bps})  # fmt: skip
+                                 "subscriber": row.node_sub, "bandwidth_bps": row.bandwidth_bps,
+                                 "bytes": int(msg.traffic), "delivered": row.delivered})  # fmt: skip
         if self.writer is not None:
             self.writer.write(info.topic, info.type_name, info.received_timestamp_ns, data)
 
@@ -156,6 +159,7 @@ class Monitor:
         with self.lock:
             first = self._placements.get(robot, (time.monotonic() - self._started, b""))[0]
             self._placements[robot] = (first, data)
+            self._placed_stamps.setdefault(robot, data)
 
     def placements(self) -> dict[str, tuple[float, NDArray[np.float64]]]:
         """Per placed robot: seconds after the start when its SLAM placed it in the fleet frame, and its latest
@@ -170,6 +174,21 @@ class Monitor:
             try:
                 out[robot] = (first, transform_matrix(deserialize(data, FLEET_TRANSFORM.type).transform))
             except Exception as err:  # a malformed one is reported, not fatal to the report
+                log.warning("%s: unreadable fleet transform: %s", robot, err)
+        return out
+
+    def placement_stamps(self) -> dict[str, float]:
+        """Per placed robot, the stamp (s) of its first ``slam/fleet_transform``: its poses stamped earlier were
+        tracked before it was placed in the fleet frame."""
+        from fleetslam.msg.typesys import deserialize, ns_from_stamp
+
+        with self.lock:
+            first = dict(self._placed_stamps)
+        out = {}
+        for robot, data in first.items():
+            try:
+                out[robot] = ns_from_stamp(deserialize(data, FLEET_TRANSFORM.type).header.stamp) / 1e9
+            except Exception as err:  # as in placements()
                 log.warning("%s: unreadable fleet transform: %s", robot, err)
         return out
 

@@ -41,6 +41,10 @@ class DemoResult:
     """Per robot its SLAM placed in the fleet frame: seconds after the start, and its latest ``T_fleet_map``."""
     true_placements: dict[str, Any] = field(default_factory=dict)
     """Per robot, the true ``T_fleet_map`` (from the simulator's start poses; evaluation only)."""
+    placed_stamps: dict[str, float] = field(default_factory=dict)
+    """Per placed robot, the stamp (s) of its first placement: its poses stamped earlier precede it."""
+    fleet: FleetTrajectories | None = None
+    """The trajectories in the fleet frame (``fleet_trajectories/``) and the fleet ATE, when robots were placed."""
 
     def per_agent(self) -> dict[str, dict[str, float]]:
         totals: dict[str, dict[str, float]] = {}
@@ -50,6 +54,18 @@ class DemoResult:
             t["delivered"] += row.delivered
             t["dropped"] += row.dropped
         return totals
+
+
+@dataclass(frozen=True)
+class FleetTrajectories:
+    """What :func:`write_fleet_trajectories` wrote: per placed robot its poses in the fleet frame and how many of them
+    precede its placement, and the fleet ATE."""
+
+    poses: dict[str, int]
+    before_placement: dict[str, int]
+    ate: float | None
+    """ATE RMSE (m) of the placed robots' fleet trajectories concatenated, with one SE(3) alignment for all (COVINS
+    style: a wrong placement shows here, while each robot's own alignment hides it); None without ground truth."""
 
 
 @dataclass(frozen=True)
@@ -227,11 +243,94 @@ def fleet_section(result: DemoResult) -> Section | None:
     return Section("Fleet frame", table, text)
 
 
+def fleet_trajectory_section(result: DemoResult) -> Section | None:
+    """Per robot its poses in the fleet frame (how many precede its placement) and its ATE, and the fleet ATE: one
+    alignment over all robots' fleet trajectories (None when no robot was placed)."""
+    fleet = result.fleet
+    if fleet is None or not fleet.poses:
+        return None
+    table = Table(("robot", "poses in the fleet frame", "before placement", "ATE RMSE (m), own alignment"),
+                  (False, True, True, True))  # fmt: skip
+    for robot in sorted(fleet.poses):
+        table.rows.append([robot, str(fleet.poses[robot]), str(fleet.before_placement.get(robot, 0)),
+                           f"{result.ate[robot]:.3f}" if robot in result.ate else MISSING])  # fmt: skip
+    fleet_ate = f"{fleet.ate:.3f}" if fleet.ate is not None else MISSING
+    table.rows.append(["fleet (one alignment)", str(sum(fleet.poses.values())),
+                       str(sum(fleet.before_placement.values())), fleet_ate])  # fmt: skip
+    text = ("`fleet_trajectories/<robot>.txt`: each placed robot's SLAM trajectory (camera optical frame) moved into "
+            "the fleet frame by its latest placement; poses stamped before its first placement precede it (its "
+            "map frame was placed later, by the same transform). Fleet ATE: the robots' fleet trajectories "
+            "concatenated and SE(3)-aligned to the ground truth once, translation RMSE.")  # fmt: skip
+    return Section("Fleet trajectories", table, text)
+
+
+def _robots(result: DemoResult) -> list[str]:
+    return sorted(set(result.slam) | set(result.placements))
+
+
+def pairs_section(result: DemoResult) -> Section | None:
+    """Per agent pair: when both were first placed in the fleet frame (their maps merged), and the inter-agent
+    closures each agent holds with the other, accepted and rejected (``peer_closures_accepted.<peer>``,
+    ``peer_closures_rejected.<peer>`` of its latest diagnostics); None with fewer than two robots or when no robot
+    was placed by its SLAM (start poses given, or no SLAM)."""
+    robots = _robots(result)
+    if len(robots) < 2 or not result.placements:
+        return None
+    table = Table(("agents", "first merge after (s)", "closures held by", "accepted", "rejected"),
+                  (False, True, False, True, True))  # fmt: skip
+    for i, a in enumerate(robots):
+        for b in robots[i + 1 :]:
+            placed = [result.placements[r][0] for r in (a, b) if r in result.placements]
+            merged = f"{max(placed):.0f}" if len(placed) == 2 else "not merged"
+            for holder, peer in ((a, b), (b, a)):
+                values = result.slam.get(holder) or {}
+                table.rows.append([f"{a} ↔ {b}", merged, holder, values.get(f"peer_closures_accepted.{peer}", MISSING),
+                                   values.get(f"peer_closures_rejected.{peer}", MISSING)])  # fmt: skip
+    text = (
+        "First merge: seconds after the start when the later of the two was placed in the fleet frame. Closures: "
+        "those each agent holds with the other (verified by it or shared by the other, the latest 64); accepted: "
+        "the consistent set its placement rests on, rejected: those inconsistent with it (repeated structure)."
+    )
+    return Section("Agent pairs", table, text)
+
+
+#: The topics an agent sends its peers (summed for the bytes exchanged per keyframe).
+EXCHANGE_TOPICS = ("keyframe_summaries", "graph_updates")
+
+
+def exchange_section(result: DemoResult) -> Section | None:
+    """Per agent and peer: the bytes of its ``keyframe_summaries`` and ``graph_updates`` the peer's SLAM received
+    (summed over the statistics windows of the run) and per keyframe the agent made (None without such traffic)."""
+    robots = _robots(result)
+    received: dict[tuple[str, str, str], int] = {}
+    for h in result.history:
+        for agent in robots:
+            for topic in EXCHANGE_TOPICS:
+                if h["topic"] != f"/{agent}/{topic}" or "bytes" not in h:
+                    continue
+                peer = h["subscriber"].strip("/").split("/")[0]
+                if peer in robots and peer != agent and h["subscriber"] == f"/{peer}/slam":
+                    received[(agent, peer, topic)] = received.get((agent, peer, topic), 0) + int(h["bytes"])
+    if not received:
+        return None
+    table = Table(("agent", "to", "keyframes", *(f"{t} (kB)" for t in EXCHANGE_TOPICS), "bytes per keyframe"),
+                  (False, False, True, True, True, True))  # fmt: skip
+    for agent, peer in sorted({(a, p) for a, p, _ in received}):
+        keyframes = (result.slam.get(agent) or {}).get("keyframes")
+        sent = [received.get((agent, peer, topic), 0) for topic in EXCHANGE_TOPICS]
+        per_keyframe = f"{sum(sent) / int(keyframes):.0f}" if keyframes and int(keyframes) > 0 else MISSING
+        table.rows.append([agent, peer, keyframes or MISSING, *(f"{b / 1e3:.1f}" for b in sent), per_keyframe])
+    text = ("What each agent's peer received of its keyframe summaries and graph updates over the run (from the "
+            "peer's `/statistics`), and per keyframe the agent made (its latest diagnostics).")  # fmt: skip
+    return Section("Exchange per agent", table, text)
+
+
 def build_report(result: DemoResult, figures: Sequence[Path | None] = ()) -> Report:
     """The report of a run: its tables (maps read from ``out_dir/maps/*.bt``) and ``figures`` (None: left out)."""
     maps_dir = result.out_dir / "maps"
     maps = sorted(maps_dir.glob("*.bt")) if maps_dir.is_dir() else []
     sections = [maps_section(maps), slam_section(result.slam, result.ate), fleet_section(result),
+                fleet_trajectory_section(result), pairs_section(result), exchange_section(result),
                 process_section(result.processes), agents_section(result)]  # fmt: skip
     return Report(
         title="fleetslam demo report",
@@ -275,7 +374,8 @@ def write_results(result: DemoResult) -> None:
     (out / "processes.json").write_text(json.dumps([p.as_dict() for p in result.processes], indent=1))
     (out / "slam.json").write_text(json.dumps(result.slam, indent=1))
     if result.placements:
-        placed = {robot: {"placed_after_s": round(seconds, 1), "T_fleet_map": np.asarray(pose).tolist(),
+        placed = {robot: {"placed_after_s": round(seconds, 1), "placed_at_stamp": result.placed_stamps.get(robot),
+                          "T_fleet_map": np.asarray(pose).tolist(),
                           "true_T_fleet_map": (np.asarray(result.true_placements[robot]).tolist()
                                                if robot in result.true_placements else None)}
                   for robot, (seconds, pose) in result.placements.items()}  # fmt: skip
@@ -311,6 +411,65 @@ def write_trajectories(
             except Exception as err:
                 log.warning("ATE of %s: %s", robot, err)
     return ate
+
+
+def write_fleet_trajectories(
+    out_dir: Path, placements: Mapping[str, tuple[float, Any]], placed_stamps: Mapping[str, float]
+) -> FleetTrajectories:
+    """``fleet_trajectories/<robot>.txt`` (TUM, camera optical frame) of every placed robot: its SLAM trajectory
+    (``trajectories/<robot>.txt``) moved by its latest ``T_fleet_map``, with a comment line saying from which
+    stamp on it was placed; and the fleet ATE against ``ground_truth/`` (see :class:`FleetTrajectories`)."""
+    from fleetslam.trajectory import Trajectory, read_tum, write_tum
+
+    poses: dict[str, int] = {}
+    before: dict[str, int] = {}
+    estimates: list[Trajectory] = []
+    truths: list[Trajectory] = []
+    for robot, (_, fleet_from_map) in sorted(placements.items()):
+        slam_file, truth_file = out_dir / "trajectories" / f"{robot}.txt", out_dir / "ground_truth" / f"{robot}.txt"
+        if not slam_file.is_file():
+            continue
+        slam = read_tum(slam_file)
+        moved = Trajectory(slam.stamps, np.asarray(fleet_from_map) @ slam.poses)
+        path = out_dir / "fleet_trajectories" / f"{robot}.txt"
+        write_tum(path, moved)
+        placed_at = placed_stamps.get(robot)
+        poses[robot] = len(moved)
+        before[robot] = int(np.sum(moved.stamps < placed_at)) if placed_at is not None else 0
+        placed = (f"placed at stamp {placed_at:.6f}: the {before[robot]} poses stamped earlier precede its placement"
+                  if placed_at is not None else "stamp of placement unknown")  # fmt: skip
+        note = f"# {robot}'s SLAM camera (optical frame) in the fleet frame; {placed}\n"
+        path.write_text(note + path.read_text())
+        if truth_file.is_file() and len(moved):
+            estimates.append(moved)
+            truths.append(read_tum(truth_file))
+    return FleetTrajectories(poses, before, fleet_ate(estimates, truths))
+
+
+def fleet_ate(estimates: Sequence[Any], truths: Sequence[Any], max_diff: float = 0.1) -> float | None:
+    """ATE RMSE (m) of several robots' trajectories in one frame against their ground truths, with one SE(3)
+    alignment for all: each robot's stamps are shifted to a span of their own (the robots' poses share stamps) and
+    the trajectories concatenated. None with no trajectories or when they cannot be associated or aligned."""
+    from fleetslam.trajectory import Trajectory
+
+    if not estimates:
+        return None
+    t0 = min(float(np.min(t.stamps)) for t in [*estimates, *truths] if len(t))
+    span = max(float(np.max(t.stamps)) for t in [*estimates, *truths] if len(t)) - t0 + 1000.0
+
+    def concatenated(trajectories: Sequence[Any]) -> Trajectory:
+        stamps = np.concatenate([t.stamps - t0 + k * span for k, t in enumerate(trajectories)])
+        poses = np.concatenate([t.poses for t in trajectories])
+        order = np.argsort(stamps, kind="stable")
+        return Trajectory(stamps[order], poses[order])
+
+    try:
+        from fleetslam.eval import ape
+
+        return float(ape(concatenated(truths), concatenated(estimates), align=True, max_diff=max_diff).rmse)
+    except Exception as err:  # as for each robot's ATE: reported missing, not fatal to the report
+        log.warning("fleet ATE: %s", err)
+        return None
 
 
 def plot_trajectories(robots: list[str], out_dir: Path) -> Path | None:

@@ -503,6 +503,7 @@ class SlamNode:
             # Images the subscriptions overwrote before the node's callbacks saw them (a starved process).
             "images_overwritten": sum(sub.queue_overflows for sub in self._image_subscriptions),
             **self.counts,
+            **peer_closure_counts(self.linker),
             "odometry_ms": round(float(timings.get("total", 0.0)), 2),
             "odometry_ms_mean": round(float(np.mean(self._odometry_ms)), 2),
             "step_ms": round(step_ms, 2),
@@ -725,3 +726,16 @@ class SlamNode:
     def on_pause(self, request: Any) -> Any:
         self.paused = bool(request.data)
         return get_type("std_srvs/srv/SetBool_Response")(success=True, message="paused" if self.paused else "running")
+
+
+def peer_closure_counts(linker: InterAgentLinker) -> dict[str, int]:
+    """Per peer, for ``slam/diagnostics``: ``peer_closures_accepted.<peer>``, the closures its map frame is placed by
+    (the largest consistent set, once accepted), and ``peer_closures_rejected.<peer>``, those held outside that set
+    (inconsistent with it: repeated structure, a wrong match). Over the closures held (the latest 64 per peer)."""
+    counts = {}
+    for peer, state in sorted(linker.peers.items()):
+        believed = len(state.decision.inliers) if state.decision is not None else 0
+        placed = state.decision is not None and state.decision.alignment is not None
+        counts[f"peer_closures_accepted.{peer}"] = believed if placed else 0
+        counts[f"peer_closures_rejected.{peer}"] = len(state.closures.closures) - believed
+    return counts

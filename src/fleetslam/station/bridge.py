@@ -14,15 +14,24 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from fleetslam import topics
 from fleetslam.errors import MessageError
+from fleetslam.geometry import invert, matrix_to_quat
 from fleetslam.middleware import Context, Node
 from fleetslam.middleware.stats_table import StatsTable
-from fleetslam.msg.conversions import depth_from_image, image_to_array, pointcloud2_xyz, rgb_from_image
+from fleetslam.msg.conversions import (
+    depth_from_image,
+    image_to_array,
+    pointcloud2_xyz,
+    pose_matrix,
+    rgb_from_image,
+    transform_matrix,
+)
 from fleetslam.msg.typesys import deserialize, get_type
 from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
 
@@ -40,13 +49,17 @@ class AgentView:
 
     name: str
     voxels: VoxelDiff
-    poses: dict[str, dict[str, float]] = field(default_factory=dict)
+    poses: dict[str, dict[str, Any]] = field(default_factory=dict)
     paths: dict[str, list[list[float]]] = field(default_factory=dict)
     keyframes: list[list[float]] = field(default_factory=list)
     last_image: dict[str, float] = field(default_factory=dict)
     last_pose: dict[str, float] = field(default_factory=dict)
     """When each pose source was last sent to the browsers (monotonic s)."""
     image_seq: int = 0
+    placement: list[float] | None = None
+    """``T_fleet_map`` (row-major), once the agent's SLAM placed its map frame in the fleet frame."""
+    mounting: list[float] | None = None
+    """``T_base_camera`` (row-major) from the agent's ``tf_static``: which way is up in its map frame."""
 
 
 class StationBridge:
@@ -122,6 +135,7 @@ class StationBridge:
             # station otherwise deserialised every frame of every camera, ~8 MB/s in the demo, for nothing).
             sub(image.type, image.of(name), self._image_callback(view, kind), image.qos(depth=1, best_effort=True),
                 raw=True)  # fmt: skip
+        self._follow_frames(view)
         # Depth 10, the middleware's default that the console has always published with.
         cmd_vel = topics.CMD_VEL
         self._cmd_publishers[name] = self.node.create_publisher(cmd_vel.type, cmd_vel.of(name), cmd_vel.qos(depth=10))
@@ -157,7 +171,11 @@ class StationBridge:
 
     def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        pose = {"x": p.x, "y": p.y, "z": p.z, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w)}
+        if source == "slam":  # the camera's pose: the robot's marker goes where its base is
+            pose = robot_pose(pose_matrix(msg.pose.pose), view.mounting)
+        else:
+            pose = {"x": p.x, "y": p.y, "z": p.z, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w),
+                    "q": [q.x, q.y, q.z, q.w]}  # fmt: skip
         view.poses[source] = pose
         path = view.paths.setdefault(source, [])
         if not path or (path[-1][0] - p.x) ** 2 + (path[-1][1] - p.y) ** 2 > 0.0025:
@@ -202,6 +220,30 @@ class StationBridge:
              "data": base64.b64encode(data).decode()},
             view.name,
         )  # fmt: skip
+
+    # -- frames: where each agent's map frame lies in the fleet frame, and which way is up in it -------------
+    def _follow_frames(self, view: AgentView) -> None:
+        """The agent's ``slam/fleet_transform`` and its camera's mounting (``tf_static``), both latched: a console
+        started later gets them at once."""
+        for topic, callback in ((topics.FLEET_TRANSFORM, self._on_placement), (topics.TF_STATIC, self._on_mounting)):
+            self.node.create_subscription(topic.type, topic.of(view.name), partial(callback, view), topic.qos(depth=1))
+
+    def _on_placement(self, view: AgentView, msg: Any) -> None:
+        """``fleet → <agent>/map``: the page draws the agent's map, path and marker through it."""
+        matrix = _finite_matrix(view.name, "fleet transform", msg.transform)
+        if matrix is not None:
+            view.placement = matrix
+            self.emit(frame_message(view), None)
+
+    def _on_mounting(self, view: AgentView, msg: Any) -> None:
+        """``base_link → *optical_frame``: the agent's map frame is its camera's at start, upright through this."""
+        for transform in msg.transforms:
+            parent, child = transform.header.frame_id.split("/")[-1], transform.child_frame_id
+            if parent == "base_link" and child.endswith("optical_frame"):
+                matrix = _finite_matrix(view.name, "camera mounting", transform.transform)
+                if matrix is not None:
+                    view.mounting = matrix
+                    self.emit(frame_message(view), None)
 
     def _on_statistics(self, msg: Any) -> None:
         with self._lock:
@@ -252,6 +294,8 @@ class StationBridge:
                 out.append({"type": "path", "agent": view.name, "source": source, "points": points})
             if view.keyframes:
                 out.append({"type": "keyframes", "agent": view.name, "poses": view.keyframes})
+            if view.placement is not None or view.mounting is not None:
+                out.append(frame_message(view))
         return out
 
     def close(self) -> None:
@@ -280,3 +324,35 @@ def encode_image(msg: Any, kind: str) -> tuple[str, bytes]:
         raise ValueError("JPEG encoding failed")
     del kind
     return "image/jpeg", buffer.tobytes()
+
+
+def frame_message(view: AgentView) -> dict[str, Any]:
+    """The browsers' ``frame`` message of an agent: its placement and camera mounting (each None until known)."""
+    return {"type": "frame", "agent": view.name, "placement": view.placement, "mounting": view.mounting}
+
+
+def _finite_matrix(agent: str, what: str, transform: Any) -> list[float] | None:
+    """A geometry_msgs/Transform as a row-major 4×4 list; None (logged) when it is not a finite rigid transform."""
+    try:
+        matrix = transform_matrix(transform)
+    except (ValueError, MessageError) as err:
+        log.warning("%s %s: %s", agent, what, err)
+        return None
+    if not np.isfinite(matrix).all():
+        log.warning("%s %s is not finite: ignored", agent, what)
+        return None
+    return [float(v) for v in matrix.reshape(-1)]
+
+
+#: ``T_base_camera`` of a level camera looking ahead (optical z ahead, x right, y down), for a robot whose camera
+#: mounting is not known.
+LEVEL_CAMERA = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def robot_pose(camera: np.ndarray, mounting: list[float] | None) -> dict[str, Any]:
+    """The browsers' pose of a robot's base (``T_map_base``, marker and heading) from its camera's pose
+    ``T_map_camera`` and the camera's mounting ``T_base_camera`` (row-major; a level camera when not known)."""
+    base = camera @ invert(np.reshape(mounting, (4, 4)) if mounting is not None else LEVEL_CAMERA)
+    x, y, z, w = matrix_to_quat(base[:3, :3])
+    return {"x": float(base[0, 3]), "y": float(base[1, 3]), "z": float(base[2, 3]),
+            "yaw": yaw_from_quaternion(x, y, z, w), "q": [float(x), float(y), float(z), float(w)]}  # fmt: skip

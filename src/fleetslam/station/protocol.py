@@ -4,8 +4,12 @@ Browser ⇄ server messages are JSON objects with a ``type``:
 
 server → browser
   ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
-  ``pose`` {agent, source, x, y, z, yaw}; ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
+  ``pose`` {agent, source, x, y, z, yaw, q: [x, y, z, w]} (the robot's base; ``slam``: in its map frame, from the
+  camera's pose); ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
   ``image`` {agent, kind: rgb|depth, mime, data (base64), seq}; ``stats`` {rows}; ``pong`` {t};
+  ``frame`` {agent, placement: ``T_fleet_map``, mounting: ``T_base_camera`` (4×4 row-major, null until known)}: the
+  agent's map, path, keyframes and ``slam`` pose are in its map frame (its camera's at start), placed in the fleet
+  frame by ``placement`` (its own frame until then) and drawn upright through ``mounting``;
   ``estop`` {agent, engaged, ok, message}
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};

@@ -73,18 +73,130 @@ function view(agent) {
   agentViews.set(agent, v);
   return v;
 }
+// ---------------------------------------------------------------- frames
+// An agent's map, SLAM path, keyframes and marker are in its map frame (its camera's at start: z ahead, y down): they
+// are drawn in one group per agent, placed in the fleet frame by the agent's `fleet → <agent>/map` once its SLAM has
+// placed it ("frame" messages), and until then beside what is in the fleet frame, labelled as its own. The fleet map
+// is in the fleet frame. Frames are drawn upright through the cameras' mountings (T_base_camera): the fleet frame as
+// seen from the base, at its start, of the first placed agent whose mounting is known; an unplaced agent's from its
+// own. Wheel odometry (its odom frame) stands in for an agent without SLAM; ground truth (the simulator's world
+// frame, which the fleet is not told) is not drawn.
+const UNPLACED_OFFSET_M = 40;
+state.frames = {};
+const frames = new Map();
+const fleetRoot = new THREE.Group();
+fleetRoot.matrixAutoUpdate = false;
+scene.add(fleetRoot);
+function frameOf(agent) {
+  if (agent === "fleet") return fleetRoot;
+  let frame = frames.get(agent);
+  if (frame) return frame;
+  frame = new THREE.Group();
+  frame.name = agent;
+  frame.matrixAutoUpdate = false;
+  frames.set(agent, frame);
+  scene.add(frame);
+  placeFrames();
+  return frame;
+}
+function frameLabel(text, color) {
+  const canvas = document.createElement("canvas");
+  canvas.width = 512; canvas.height = 64;
+  const ctx = canvas.getContext("2d");
+  ctx.font = "bold 30px sans-serif";
+  ctx.fillStyle = color;
+  ctx.textAlign = "center";
+  ctx.fillText(text, 256, 42, 500);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false }));
+  sprite.scale.set(6, 0.75, 1);
+  sprite.userData.text = text;
+  return sprite;
+}
+const rowMajor = (m) => new THREE.Matrix4().set(...m);
+function placeFrames() {
+  const known = [...new Set([...state.agents, ...frames.keys()])].sort();
+  const placement = (a) => state.frames[a]?.placement, mounting = (a) => state.frames[a]?.mounting;
+  const upright = known.find((a) => placement(a) && mounting(a));
+  fleetRoot.matrix.identity();
+  if (upright) fleetRoot.matrix.copy(rowMajor(mounting(upright))).multiply(rowMajor(placement(upright)).invert());
+  fleetRoot.matrixWorldNeedsUpdate = true;
+  const unplaced = known.filter((a) => !placement(a));
+  const shift = unplaced.length < known.length ? 1 : 0; // beside the fleet frame once anyone is in it
+  for (const [agent, frame] of frames) {
+    if (placement(agent)) {
+      if (frame.parent !== fleetRoot) fleetRoot.add(frame);
+      frame.matrix.copy(rowMajor(placement(agent)));
+    } else {
+      if (frame.parent !== scene) scene.add(frame);
+      frame.matrix.makeTranslation(0, -UNPLACED_OFFSET_M * (unplaced.indexOf(agent) + shift), 0);
+      if (mounting(agent)) frame.matrix.multiply(rowMajor(mounting(agent)));
+    }
+    frame.matrixWorldNeedsUpdate = true;
+    const text = placement(agent) ? agent : `${agent} (own frame, not merged)`;
+    let label = frame.userData.label;
+    if (label?.userData.text !== text) {
+      if (label) { label.removeFromParent(); label.material.map.dispose(); label.material.dispose(); }
+      label = frame.userData.label = frameLabel(text, agentColor(agent));
+      scene.add(label);
+    }
+    frame.updateMatrixWorld(true);
+    label.position.setFromMatrixPosition(frame.matrixWorld).add(new THREE.Vector3(0, 0, 2.5));
+  }
+  state.sceneChanged = true;
+}
+function onFrame(msg) {
+  if (msg.agent === "fleet") return;
+  const matrix = (m) => (Array.isArray(m) && m.length === 16 ? m : null);
+  const before = state.frames[msg.agent] || {};
+  state.frames[msg.agent] = { placement: matrix(msg.placement), mounting: matrix(msg.mounting) };
+  frameOf(msg.agent);
+  placeFrames();
+  const now = state.frames[msg.agent];
+  if (!before.placement !== !now.placement || !before.mounting !== !now.mounting) { // "up" changed: recolour
+    for (const v of agentViews.values()) v.dirty = v.voxels.size > 0;
+  }
+}
+// SLAM's pose and path where there is SLAM, else the wheel odometry's; never the ground truth (another frame).
+function drawnSource(agent, source) {
+  const v = view(agent);
+  if (source === "slam" && !v.hasSlam) {
+    v.hasSlam = true;
+    removeLine(v, "odom"); removeLine(v, "trail-odom"); v.trailsChanged?.delete("odom");
+    if (v.poses.odom) { v.poses.odom.removeFromParent(); delete v.poses.odom; }
+  }
+  return source === "slam" || (source === "odom" && !v.hasSlam);
+}
+// Where a point of an agent's map frame is drawn (tests): its frame's label, placement and world position.
+state.frameOf = (agent, point = [0, 0, 0]) => {
+  const frame = frames.get(agent);
+  if (!frame) return null;
+  scene.updateMatrixWorld(true);
+  const v = view(agent);
+  const p = new THREE.Vector3(...point).applyMatrix4(frame.matrixWorld);
+  const marker = Object.values(v.poses)[0];
+  return {
+    label: frame.userData.label?.userData.text, placed: !!state.frames[agent]?.placement, world: [p.x, p.y, p.z],
+    cloudInFrame: !!v.cloud && v.cloud.parent === frame,
+    marker: marker && marker.parent === frame ? marker.getWorldPosition(new THREE.Vector3()).toArray() : null,
+    markerUp: marker ? new THREE.Vector3(0, 0, 1).applyQuaternion(marker.getWorldQuaternion(new THREE.Quaternion())).toArray() : null,
+  };
+};
+
 // Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
 // a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
 // lit triangles each took most of a core at ten frames a second; a sprite is one quad.
 function rebuildVoxels(agent, v) {
-  if (v.cloud) { scene.remove(v.cloud); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
+  if (v.cloud) { v.cloud.removeFromParent(); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
   const n = v.voxels.size;
   const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
   const c = new THREE.Color();
+  const frame = frameOf(agent);
+  frame.updateWorldMatrix(true, false);
+  const e = frame.matrixWorld.elements; // coloured by height as drawn (a map frame's z may be ahead, not up)
   let i = 0;
   for (const [x, y, z] of v.voxels.values()) {
     positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
-    heightColor(z, c);
+    heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], c);
     colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
     i += 3;
   }
@@ -97,7 +209,7 @@ function rebuildVoxels(agent, v) {
     transparent: fleet, opacity: fleet ? 0.35 : 1, depthWrite: !fleet,
   });
   const points = new THREE.Points(geometry, material);
-  scene.add(points);
+  frameOf(agent).add(points);
   v.cloud = points;
   v.dirty = false;
 }
@@ -122,18 +234,19 @@ function lineFor(points, color, dashed) {
 function removeLine(v, name) {
   const line = v.paths[name];
   if (!line) return;
-  scene.remove(line);
+  line.removeFromParent();
   line.geometry.dispose();
   line.material.dispose();
   delete v.paths[name];
 }
 function onPath(msg) {
   const v = view(msg.agent);
+  if (!drawnSource(msg.agent, msg.source)) return;
   removeLine(v, msg.source);
   const color = new THREE.Color(agentColor(msg.agent));
   if (msg.source === "truth") color.multiplyScalar(0.55);
   v.paths[msg.source] = lineFor(msg.points, color, msg.source === "truth");
-  scene.add(v.paths[msg.source]);
+  frameOf(msg.agent).add(v.paths[msg.source]);
 }
 function robotMarker(color) {
   const group = new THREE.Group();
@@ -149,14 +262,16 @@ function robotMarker(color) {
 function onPose(msg) {
   const v = view(msg.agent);
   const source = msg.source;
+  if (!drawnSource(msg.agent, source)) return;
   if (!v.poses[source]) {
     v.poses[source] = robotMarker(agentColor(msg.agent));
     if (source === "truth") v.poses[source].children.forEach((c) => { c.material.transparent = true; c.material.opacity = 0.35; });
-    scene.add(v.poses[source]);
+    frameOf(msg.agent).add(v.poses[source]);
     v.trail = v.trail || {};
   }
   v.poses[source].position.set(msg.x, msg.y, msg.z);
-  v.poses[source].rotation.set(0, 0, msg.yaw);
+  if (msg.q) v.poses[source].quaternion.set(...msg.q);
+  else v.poses[source].rotation.set(0, 0, msg.yaw);
   v.trail = v.trail || {};
   const trail = (v.trail[source] = v.trail[source] || []);
   const last = trail[trail.length - 1];
@@ -179,7 +294,7 @@ function redrawTrails(now) {
       const color = new THREE.Color(agentColor(agent));
       if (source === "truth") color.multiplyScalar(0.55);
       v.paths["trail-" + source] = lineFor(v.trail[source], color, source === "truth");
-      scene.add(v.paths["trail-" + source]);
+      frameOf(agent).add(v.paths["trail-" + source]);
     }
     v.trailsChanged.clear();
     v.trailsDrawn = now;
@@ -196,7 +311,7 @@ const FRUSTUM = (() => {
 // is): a graph of hundreds of keyframes arrives every second.
 function onKeyframes(msg) {
   const v = view(msg.agent);
-  if (v.keyframes) { scene.remove(v.keyframes); v.keyframes.geometry.dispose(); v.keyframes.material.dispose(); }
+  if (v.keyframes) { v.keyframes.removeFromParent(); v.keyframes.geometry.dispose(); v.keyframes.material.dispose(); }
   const positions = new Float32Array(msg.poses.length * FRUSTUM.length * 3);
   const q = new THREE.Quaternion(), p = new THREE.Vector3();
   let i = 0;
@@ -211,7 +326,7 @@ function onKeyframes(msg) {
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
   const material = new THREE.LineBasicMaterial({ color: agentColor(msg.agent), transparent: true, opacity: 0.7 });
   v.keyframes = new THREE.LineSegments(geometry, material);
-  scene.add(v.keyframes);
+  frameOf(msg.agent).add(v.keyframes);
 }
 // The 3D view is drawn when something in it changed (map, poses, paths, keyframes, the viewpoint), at most five
 // times a second: the data arrives about once a second (poses ten times), and on a machine without a GPU (software
@@ -255,7 +370,7 @@ function renderAgents() {
   }
   document.getElementById("legend").innerHTML = state.agents
     .map((a) => `<span style="color:${agentColor(a)}">■</span> ${a}`).join("&nbsp;&nbsp;") +
-    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; solid: SLAM/odometry, dashed: ground truth";
+    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; in the fleet frame; an agent not merged yet in its own, beside it";
 }
 function select(name) {
   state.selected = name;
@@ -384,11 +499,13 @@ function connect() {
         state.agents = msg.agents;
         if (!state.selected && state.agents.length) select(state.agents[0]);
         renderAgents();
+        placeFrames();
         break;
       case "voxels": onVoxels(msg); state.sceneChanged = true; break;
       case "pose": onPose(msg); state.sceneChanged = true; break;
       case "path": onPath(msg); state.sceneChanged = true; break;
       case "keyframes": onKeyframes(msg); state.sceneChanged = true; break;
+      case "frame": onFrame(msg); break;
       case "image": onImage(msg); break;
       case "stats": onStats(msg); break;
       case "pong":
