@@ -41,7 +41,7 @@ def test_the_store_keeps_the_newest_summaries_and_answers_a_few_per_call() -> No
 def test_a_hostile_request_is_answered_for_its_first_ids_only() -> None:
     store = SummaryStore(capacity=3, max_per_call=8)
     store.add(_summary("r2d2", 1))
-    found, unknown = store.lookup(list(range(2, 1_000_000)) + [1])
+    found, unknown = store.lookup([*range(2, 1_000_000), 1])
     assert found == [] and len(unknown) == MAX_REQUEST_IDS  # id 1 comes after the first 256: not looked at
     with pytest.raises(ValueError, match="capacity"):
         SummaryStore(capacity=0)
@@ -103,13 +103,13 @@ def _update(sequence: int, ids: range, epoch: int = 7, *, full: bool = False) ->
 def test_the_linker_asks_for_what_its_mirror_names_without_a_summary() -> None:
     config = CollaborationConfig(catch_up_batch=4, catch_up_grace=1.0, catch_up_period=0.5, max_queued=16)
     linker = InterAgentLinker("c3po", config)
-    linker.apply_graph("r2d2", _update(1, range(0, 3)))
+    linker.apply_graph("r2d2", _update(1, range(3)))
     for i in range(3):
         linker.queue_summary(_summary("r2d2", i, features=30))
     # The link drops: keyframes 3..9 are made without this agent hearing of them; a gap, then the full graph.
     assert not linker.apply_graph("r2d2", _update(5, range(9, 10)))
     assert linker.catch_up_request("r2d2", 10.0) == (7, [])  # out of sync: not before the full graph
-    assert linker.apply_graph("r2d2", _update(5, range(0, 10), full=True))
+    assert linker.apply_graph("r2d2", _update(5, range(10), full=True))
     assert linker.catch_up_request("r2d2", 10.0) == (7, [])  # grace
     epoch, ids = linker.catch_up_request("r2d2", 11.0)
     assert (epoch, ids) == (7, [3, 4, 5, 6])
@@ -126,5 +126,5 @@ def test_the_linker_asks_for_what_its_mirror_names_without_a_summary() -> None:
     state = linker.peers["r2d2"].catch_up
     assert state.caught_up == {3, 4} and state.received == {0, 1, 2, 3, 4} and state.failures == 1
     off = InterAgentLinker("c3po", CollaborationConfig(catch_up=False, catch_up_grace=0.0))
-    off.apply_graph("r2d2", _update(1, range(0, 3)))
+    off.apply_graph("r2d2", _update(1, range(3)))
     assert off.catch_up_request("r2d2", 10.0) == (7, [])
