@@ -148,23 +148,27 @@ class SummaryCatchUp:
             if by_catch_up:
                 self.caught_up.add(int(keyframe_id))
 
-    def missing(self, mirror_ids: Collection[int], now: float) -> list[int]:
-        """The keyframes in the mirror that have had no summary for ``grace_s``, not asked for now, oldest first."""
+    def missing(self, mirror_ids: Collection[int], now: float, *, limit: int | None = None) -> list[int]:
+        """The keyframes in the mirror that have had no summary for ``grace_s``, not asked for now, in id order (the
+        first ``limit`` of them)."""
         with self._lock:
-            return self._missing(mirror_ids, now)
+            return self._missing(mirror_ids, now, limit)
 
-    def _missing(self, mirror_ids: Collection[int], now: float) -> list[int]:
-        for keyframe_id in mirror_ids:
-            self._first_seen.setdefault(keyframe_id, now)
-        if len(self._first_seen) > 2 * max(len(mirror_ids), 1):  # keyframes the peer dropped from its graph
-            self._first_seen = {i: t for i, t in self._first_seen.items() if i in mirror_ids}
+    def _missing(self, mirror_ids: Collection[int], now: float, limit: int | None) -> list[int]:
+        ids = mirror_ids if isinstance(mirror_ids, set | frozenset) else set(mirror_ids)
+        candidates = ids - self.received - self.unavailable - set(self._in_flight)
+        for keyframe_id in candidates - self._first_seen.keys():
+            self._first_seen[keyframe_id] = now
+        if len(self._first_seen) > 2 * max(len(candidates), 64):  # received since, or dropped from the peer's graph
+            self._first_seen = {i: self._first_seen[i] for i in candidates}
         due = now - self.grace_s
-        return sorted(
-            i
-            for i in mirror_ids
-            if i not in self.received and i not in self.unavailable and i not in self._in_flight
-            and self._first_seen[i] <= due
-        )  # fmt: skip
+        found: list[int] = []
+        for keyframe_id in sorted(candidates):
+            if self._first_seen[keyframe_id] <= due:
+                found.append(keyframe_id)
+                if limit is not None and len(found) >= limit:
+                    break
+        return found
 
     def next_request(self, mirror_ids: Collection[int], now: float, *, room: int | None = None) -> list[int]:
         """The ids to ask the peer for now ([] when none is missing, a request is in flight, it is too early, or
@@ -176,7 +180,7 @@ class SummaryCatchUp:
             limit = self.batch if room is None else min(self.batch, room)
             if limit <= 0:
                 return []
-            ids = self._missing(mirror_ids, now)[:limit]
+            ids = self._missing(mirror_ids, now, limit)
             if ids:
                 self._in_flight = tuple(ids)
                 self.requests += 1
