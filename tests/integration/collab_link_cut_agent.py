@@ -108,8 +108,8 @@ def main() -> None:
                 "status": agent, "t": now, "frames": slam.frames, "keyframes": len(stamps),
                 "mirror": len(mirror), "synced": state.mirror.synced,
                 "missing": len(mirror - state.catch_up.received), "caught_up": len(state.catch_up.caught_up),
-                "placed": slam.fleet_transform is not None, "store": len(slam.summary_store),
-                "store_bytes": slam.summary_store.nbytes, **slam.counts,
+                "placed": slam.fleet_transform is not None, "queued": len(slam.linker.queue),
+                "store": len(slam.summary_store), "store_bytes": slam.summary_store.nbytes, **slam.counts,
             }  # fmt: skip
             print(json.dumps(status), flush=True)
             if "park" in commands:

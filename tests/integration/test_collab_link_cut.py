@@ -149,8 +149,11 @@ def test_a_30s_link_cut_loses_no_keyframe_and_the_summaries_come_by_catch_up() -
         assert set(mine["sent"]) <= set(theirs["received"]), (name, sorted(set(mine["sent"]) - set(theirs["received"])))
         assert not theirs["unavailable"]
         # The summaries of the keyframes made during the cut were lost on the stream; they came by catch-up.
-        in_cut = {k for k, t in made.items() if cut_at + 12.0 < t < restored_at}  # past the session's lease (10 s)
-        assert in_cut and in_cut <= set(theirs["caught_up"]), (name, sorted(in_cut - set(theirs["caught_up"])))
+        in_cut = {k for k, t in made.items() if cut_at + 1.0 < t < restored_at}  # seen up to 0.5 s after it was made
+        assert len(in_cut) >= 5 and in_cut <= set(theirs["caught_up"]), (
+            name,
+            sorted(in_cut - set(theirs["caught_up"])),
+        )
         assert mine["counts"]["bad_peer_messages"] == 0
     # The cut did not break r2d2's placement: still where the truth puts c3po's map frame.
     expected = invert(np.asarray(reports["c3po"]["world_from_map"])) @ np.asarray(reports["r2d2"]["world_from_map"])
@@ -159,6 +162,13 @@ def test_a_30s_link_cut_loses_no_keyframe_and_the_summaries_come_by_catch_up() -
     error = invert(expected) @ np.asarray(placed)
     assert np.linalg.norm(error[:3, 3]) < 0.1 and np.degrees(rotation_angle(error)) < 2.0, error
     for name, report in reports.items():
+        peer = AGENTS[name]
+        resynced = next(r["t"] for r in statuses[name]
+                        if r["t"] > restored_at and r["synced"] and r["mirror"] >= made_by[peer])  # fmt: skip
+        timeline = [(round(r["t"] - restored_at, 1), r["caught_up"], r["missing"], r["queued"], r["catch_up_failures"])
+                    for r in statuses[name][::2] if r["t"] > restored_at]  # fmt: skip
+        print(f"{name}: (s after the link came back, caught up, missing, queued, failed requests) {timeline}")
+        print(f"{name}: mirror of {peer} whole again {resynced - restored_at:.1f} s after the link came back")
         print(f"{name}: {during[name]} keyframes during the {CUT_S:.0f} s cut, {len(report['caught_up'])} summaries "
               f"of {AGENTS[name]} caught up, store {report['store']} summaries = {report['store_bytes'] / 1e3:.0f} kB"
               f", catch-up complete {catch_up_s:.1f} s after the link came back; "
