@@ -3,8 +3,8 @@ forth along a route in the textured room (rendered frames, as ``test_collaborati
 SLAM node, collaborating with one peer through the router on the other host. The camera and SLAM share one session,
 so the agent keeps mapping while its link is down.
 
-Prints one JSON line per half second (``"status"``: counts) and, after ``park`` (the camera stands still at the
-route's start, so the last keyframes reach the graph) and ``report`` on stdin, the full state (``"report"``): its
+Prints one JSON line per half second (``"status"``: counts) and, after ``park`` (the camera stands still, so the
+last keyframes reach the graph) and ``report`` on stdin, the full state (``"report"``): its
 keyframe ids with the wall time each was made, its mirror of the peer's graph, the peer's keyframes whose
 summaries arrived and those that came by catch-up, its placement in the fleet frame and its map frame in the world.
 ``stop`` ends it. Its stdout is a pipe, so the test still reads it while the link is down.
@@ -47,7 +47,7 @@ def route(agent: str) -> list[np.ndarray]:
 
 class BackAndForthCamera:
     """Rendered views along the route, there and back again until :meth:`close`; after ``park`` it repeats the
-    route's first view (standing still). Frame ``i`` waits (up to 10 s) until SLAM processed frame ``i - 2``."""
+    view it is at (standing still). Frame ``i`` waits (up to 10 s) until SLAM processed frame ``i - 2``."""
 
     name = "back_and_forth"
 
@@ -62,9 +62,9 @@ class BackAndForthCamera:
 
     def __iter__(self) -> Iterator[RGBDFrame]:
         cycle = list(range(len(self.views))) + list(range(len(self.views) - 2, 0, -1))
-        i = 0
+        i, view = 0, 0
         while not self.closed.is_set():
-            view = 0 if self.parked.is_set() else cycle[i % len(cycle)]
+            view = view if self.parked.is_set() else cycle[i % len(cycle)]
             deadline = time.monotonic() + 10.0
             while self.slam.frames < i - 1 and time.monotonic() < deadline and not self.closed.is_set():
                 time.sleep(0.01)
@@ -106,6 +106,7 @@ def main() -> None:
             mirror = set(state.mirror.poses)
             status = {
                 "status": agent, "t": now, "frames": slam.frames, "keyframes": len(stamps),
+                "sent": slam.graph_writer.sent_keyframes,
                 "mirror": len(mirror), "synced": state.mirror.synced,
                 "missing": len(mirror - state.catch_up.received), "caught_up": len(state.catch_up.caught_up),
                 "placed": slam.fleet_transform is not None, "queued": len(slam.linker.queue),
