@@ -149,6 +149,9 @@ OWN_HASHES = {
     "fleetslam_msgs/srv/SaveMap": "RIHS01_d610d53a3cfbc6580bae8d894bb394ef66eb3c76b8b4a3d538e641e3dfa27df3",
     "fleetslam_msgs/srv/ClearBbx": "RIHS01_5a9f7281918c9db4914931a3b64faca748b4b1b0271808e14db3a5bdda3dabea",
     "fleetslam_msgs/srv/GetGraph": "RIHS01_25d8c6f069b8083ccec601f1afd0bf17fc1d26f0e1c30999c30ba088e56917b4",
+    "fleetslam_msgs/srv/GetKeyframeSummaries": (
+        "RIHS01_928513aad536422b553cf0e2a3a107dfb779f34f562678b24f0c4a15b04fa451"
+    ),
 }
 
 

@@ -7,6 +7,9 @@ and the peers' map frames placed in its own once the closures agree.
   the oldest of a peer leave first when it floods);
 - ``apply_graph``: a peer's graph update arrived (its :class:`~fleetslam.fusion.graph_exchange.GraphMirror`
   tells whether a full graph must be requested);
+- ``catch_up_request`` / ``catch_up_answered`` / ``catch_up_failed``: which of a peer's keyframes (in the mirror of
+  its graph) came without a summary, to be asked for in small batches (a
+  :class:`~fleetslam.fusion.summary_catchup.SummaryCatchUp` per peer; the node makes the calls, off the SLAM thread);
 - ``receive_shared``: a closure a peer verified with this agent (it publishes them in its graph), so that an agent
   that joined late, or whose view a peer recognised first, is placed from the peer's evidence too;
 - ``step``: from the thread that owns the memory, between frames, verify queued summaries within a time budget;
@@ -34,6 +37,7 @@ from fleetslam.config import ConfigModel
 from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure
 from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
 from fleetslam.fusion.keyframe_summary import KeyframeSummary
+from fleetslam.fusion.summary_catchup import SummaryCatchUp
 from fleetslam.geometry import invert
 from fleetslam.slam.peer_recognition import PeerMatch, PeerPlaceRecognizer
 
@@ -65,6 +69,19 @@ class CollaborationConfig(ConfigModel):
     """Disagreement (degrees) allowed between two closures' implied frames at the same place."""
     drift_fraction: float = Field(default=0.05, ge=0.0)
     """Extra disagreement allowed per metre between the two places (both agents' drift)."""
+    summary_store: int = Field(default=1000, ge=1)
+    """This agent's newest keyframe summaries kept for peers that missed them (~18 kB each at 400 features: 18 MB
+    for 1000); older ones are answered as unknown."""
+    catch_up: bool = True
+    """Ask a peer for the summaries of keyframes its graph names but that never arrived (a link cut, a late join)."""
+    catch_up_batch: int = Field(default=8, ge=1, le=64)
+    """Summaries per catch-up request (asked and answered: ~15 kB each)."""
+    catch_up_period: float = Field(default=0.5, gt=0.0)
+    """Shortest time (s) between two catch-up requests to a peer; doubled after each failed one, up to 8 s."""
+    catch_up_timeout: float = Field(default=2.0, gt=0.0)
+    """How long (s) a catch-up request waits for its answer (a dead link must not hold the requests up longer)."""
+    catch_up_grace: float = Field(default=2.0, ge=0.0)
+    """A peer keyframe is asked for once its graph has named it this long (s) without its summary arriving."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +112,8 @@ class PeerState:
     """The peer's SLAM run these closures belong to (0: not known yet)."""
     restarts: int = 0
     """Times the peer was seen to restart (a new epoch: its map frame is new, its closures were dropped)."""
+    catch_up: SummaryCatchUp = field(default_factory=SummaryCatchUp)
+    """The peer's keyframes whose summaries this agent has, and those to ask for."""
 
 
 class InterAgentLinker:
@@ -129,7 +148,8 @@ class InterAgentLinker:
                 tolerance=tolerance, min_inliers=c.min_closures, min_places=c.min_places,
                 place_spacing_m=c.place_spacing, dominance=c.dominance,
             )  # fmt: skip
-            state = self.peers[agent] = PeerState(closures=closures)
+            catch_up = SummaryCatchUp(batch=c.catch_up_batch, period_s=c.catch_up_period, grace_s=c.catch_up_grace)
+            state = self.peers[agent] = PeerState(closures=closures, catch_up=catch_up)
         return state
 
     def _observe_epoch(self, agent: str, epoch: int) -> None:
@@ -138,6 +158,7 @@ class InterAgentLinker:
         state = self.peer(agent)
         if epoch == state.epoch or epoch == 0:
             return
+        state.catch_up.observe_epoch(epoch)
         if state.epoch != 0:
             state.restarts += 1
             state.closures = ClosureSet(
@@ -153,11 +174,15 @@ class InterAgentLinker:
                 self.shared.extend(kept)
         state.epoch = epoch
 
-    def queue_summary(self, summary: KeyframeSummary) -> None:
-        """A peer keyframe to recognise when there is time (this agent's own summaries are ignored)."""
+    def queue_summary(self, summary: KeyframeSummary, *, by_catch_up: bool = False) -> None:
+        """A peer keyframe to recognise when there is time (this agent's own summaries are ignored); ``by_catch_up``:
+        it came as the answer to a catch-up request rather than on the stream."""
         if summary.agent == self.agent:
             return
         self._observe_epoch(summary.agent, summary.epoch)
+        state = self.peer(summary.agent)
+        if summary.epoch in (0, state.epoch):
+            state.catch_up.summary_arrived(summary.keyframe_id, by_catch_up=by_catch_up)
         with self._queue_lock:
             self.queue.append(summary)
             while len(self.queue) > self.config.max_queued:
@@ -168,6 +193,34 @@ class InterAgentLinker:
         """Apply a peer's graph update; False when the peer's full graph should be requested."""
         self._observe_epoch(agent, update.epoch)
         return self.peer(agent).mirror.apply(update)
+
+    def catch_up_request(self, agent: str, now: float) -> tuple[int, list[int]]:
+        """The peer's run and the ids of its keyframes to ask it for now ([] for none: see
+        :meth:`SummaryCatchUp.next_request`); at most what fits in half of the recognition queue, so that the
+        stream's summaries keep their place. The outcome goes to :meth:`catch_up_answered` or
+        :meth:`catch_up_failed`."""
+        state = self.peer(agent)
+        if not self.config.catch_up or not state.mirror.synced or state.epoch != state.mirror.epoch:
+            return state.epoch, []
+        with self._queue_lock:
+            room = self.config.max_queued // 2 - len(self.queue)
+        ids = state.catch_up.next_request(set(state.mirror.poses), now, room=max(room, 0))
+        return state.epoch, ids
+
+    def catch_up_answered(self, agent: str, summaries: list[KeyframeSummary], unknown: list[int], now: float) -> int:
+        """A catch-up request to ``agent`` was answered: the summaries asked for (and of its current run) are queued
+        like the stream's; returns how many. ``unknown``: ids the peer no longer keeps."""
+        state = self.peer(agent)
+        asked = set(state.catch_up.in_flight)
+        taken = [s for s in summaries if s.agent == agent and s.keyframe_id in asked and s.epoch in (0, state.epoch)]
+        for summary in taken:
+            self.queue_summary(summary, by_catch_up=True)
+        state.catch_up.answered([s.keyframe_id for s in taken], unknown, now)
+        return len(taken)
+
+    def catch_up_failed(self, agent: str, now: float) -> None:
+        """A catch-up request to ``agent`` failed (timed out: the link may be down); asked again later."""
+        self.peer(agent).catch_up.failed(now)
 
     def receive_shared(self, closure: SharedClosure) -> None:
         """A closure a peer verified with this agent (of this agent's current run), used at the next :meth:`step`."""

@@ -16,7 +16,9 @@ closure all poses are re-sent, never points). After every processed frame, ``sla
 (diagnostic_msgs/DiagnosticArray, one status named ``slam``): frames received, processed and dropped,
 relocalisations, loop closures, lost and coasting frames, keyframes, and the frame's timings (odometry, steps,
 latency from the pair's arrival to its pose). Services: ``slam/save_map`` (SaveMap: map.db), ``slam/reset``
-(Trigger), ``slam/pause`` (SetBool).
+(Trigger), ``slam/pause`` (SetBool), ``graph/full`` (GetGraph) and ``keyframe_summaries/catch_up``
+(GetKeyframeSummaries: the summaries of this agent's newest keyframes, for a peer that missed them; a thread asks
+the peers for theirs the same way, see :mod:`fleetslam.fusion.summary_catchup`).
 """
 
 from __future__ import annotations
@@ -35,10 +37,11 @@ from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
-from fleetslam.errors import MessageError, UnsafePathError
+from fleetslam.errors import MessageError, ServiceError, UnsafePathError
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_of
-from fleetslam.fusion.keyframe_summary import summarize, summary_fields, summary_from_message
+from fleetslam.fusion.keyframe_summary import KeyframeSummary, summarize, summary_fields, summary_from_message
+from fleetslam.fusion.summary_catchup import MAX_REQUEST_IDS, SummaryStore
 from fleetslam.geometry import invert, rotation_angle
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import (
@@ -61,6 +64,10 @@ from fleetslam.slam.pipeline import SlamPipeline, StepResult
 from fleetslam.slam.pose_buffer import PoseBuffer
 
 log = logging.getLogger(__name__)
+
+CATCH_UP_SERVICE = "keyframe_summaries/catch_up"
+"""The service that answers a peer's catch-up requests (in the agent's namespace)."""
+CATCH_UP_TYPE = "fleetslam_msgs/srv/GetKeyframeSummaries"
 
 
 class SlamNodeConfig(ConfigModel):
@@ -138,7 +145,7 @@ class SlamNode:
         self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
                        "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0,
                        "peer_keyframes": 0, "peer_closures": 0, "bad_peer_messages": 0,
-                       "graph_requests": 0}  # fmt: skip
+                       "graph_requests": 0, "caught_up_summaries": 0, "catch_up_failures": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
         self._wheel_wait_ms: list[float] = []
@@ -212,12 +219,24 @@ class SlamNode:
                       topics.FLEET_TRANSFORM.of(peer))  # fmt: skip
             self._graph_clients[peer] = node.create_client("fleetslam_msgs/srv/GetGraph", f"/{peer}/graph/full")
         node.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", self.on_full_graph)
+        self.summary_store = SummaryStore(self.config.collaboration.summary_store,
+                                          max_per_call=self.config.collaboration.catch_up_batch)  # fmt: skip
+        """This agent's newest keyframe summaries, for peers that missed them (``keyframe_summaries/catch_up``)."""
+        node.create_service(CATCH_UP_TYPE, CATCH_UP_SERVICE, self.on_summaries_request)
+        self._summary_clients = {peer: node.create_client(CATCH_UP_TYPE, f"/{peer}/{CATCH_UP_SERVICE}")
+                                 for peer in self._graph_clients}  # fmt: skip
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name=f"{node.fq_name}/slam", daemon=True)
         self._worker.start()
+        self._catch_up_thread: threading.Thread | None = None
+        if self._summary_clients and self.config.collaboration.catch_up:
+            self._catch_up_thread = threading.Thread(
+                target=self._catch_up, name=f"{node.fq_name}/catch-up", daemon=True
+            )
+            self._catch_up_thread.start()
         node.add_on_destroy(self.close)
 
     def close(self) -> None:
@@ -226,6 +245,8 @@ class SlamNode:
         self.queue.close()
         if self._worker is not threading.current_thread():
             self._worker.join(10.0)
+        if self._catch_up_thread is not None and self._catch_up_thread is not threading.current_thread():
+            self._catch_up_thread.join(self.config.collaboration.catch_up_timeout + 1.0)
 
     # -- inputs -------------------------------------------------------------------------------------------------
     def on_camera_info(self, msg: Any) -> None:
@@ -292,18 +313,23 @@ class SlamNode:
 
     def on_peer_summary(self, peer: str, msg: Any) -> None:
         """A peer's keyframe: queued for recognition in this agent's memory (the worker does it between frames)."""
+        summary = self._summary_of(peer, msg)
+        if summary is not None:
+            self.linker.queue_summary(summary)
+
+    def _summary_of(self, peer: str, msg: Any) -> KeyframeSummary | None:
+        """A peer's ``KeyframeSummary`` message checked and converted; None (counted) when it is malformed."""
         if str(msg.agent) != peer:
             self._bad_peer_message(peer, "keyframe summary", f"it names agent {str(msg.agent)!r}")
-            return
+            return None
         pose = _valid_pose(lambda: pose_matrix(msg.pose))
         try:
             if pose is None:
                 raise MessageError("pose is not finite or not a rotation")
-            summary = summary_from_message(msg, pose, ns_from_stamp(msg.header.stamp))
+            return summary_from_message(msg, pose, ns_from_stamp(msg.header.stamp))
         except (MessageError, ValueError, TypeError) as err:
             self._bad_peer_message(peer, "keyframe summary", err)
-            return
-        self.linker.queue_summary(summary)
+            return None
 
     def on_peer_graph_update(self, peer: str, msg: Any) -> None:
         """A peer's graph update, applied to its mirror; a gap asks the peer for its whole graph."""
@@ -585,6 +611,7 @@ class SlamNode:
             summary_msg = message_from_dict("fleetslam_msgs/msg/KeyframeSummary", fields)
             summary_msg.header, summary_msg.pose = msg.header, msg.pose
             self.summary_pub.publish(summary_msg)
+            self.summary_store.add(summary)
 
     def publish_graph(self, stamp_ns: int, *, optimized: bool) -> None:
         """The whole keyframe graph on ``graph``, what changed on ``graph_updates`` and the keyframe path on
@@ -692,6 +719,53 @@ class SlamNode:
                                         sequence=max(full.sequence, 1), full=True, optimized=False)  # fmt: skip
         return response(graph=graph)
 
+    def on_summaries_request(self, request: Any) -> Any:
+        """``keyframe_summaries/catch_up``: the summaries of the ids asked that this agent keeps (a few per call),
+        and the ids it does not keep. Never waits for the SLAM thread (the store has its own lock)."""
+        store, epoch = self.summary_store, self.graph_writer.epoch
+        found, unknown = store.lookup(np.asarray(request.ids, dtype=np.int64).reshape(-1)[:MAX_REQUEST_IDS].tolist())
+        messages = []
+        for summary in found:
+            msg = message_from_dict("fleetslam_msgs/msg/KeyframeSummary", summary_fields(summary))
+            msg.header, msg.pose = header(self.config.map_frame, summary.stamp_ns), pose_msg(summary.pose)
+            messages.append(msg)
+        return get_type(f"{CATCH_UP_TYPE}_Response")(
+            agent=self.agent, epoch=epoch, summaries=messages, unknown=np.asarray(unknown, dtype=np.uint32)
+        )
+
+    def _catch_up(self) -> None:
+        """The catch-up thread: asks each peer for the summaries of keyframes its graph named but whose summaries
+        never came (see :meth:`InterAgentLinker.catch_up_request`), one request at a time, each with a timeout (a
+        dead link holds this thread, never the SLAM one, for at most ``catch_up_timeout``)."""
+        config = self.config.collaboration
+        request_type = get_type(f"{CATCH_UP_TYPE}_Request")
+        while not self._stop.wait(min(0.25, config.catch_up_period)):
+            for peer, client in self._summary_clients.items():
+                linker = self.linker  # replaced by a reset
+                _, ids = linker.catch_up_request(peer, time.monotonic())
+                if not ids or self._stop.is_set():
+                    continue
+                try:
+                    response = client.call(
+                        request_type(ids=np.asarray(ids, np.uint32)), timeout=config.catch_up_timeout
+                    )
+                    if str(response.agent) != peer:
+                        raise MessageError(f"the answer names agent {str(response.agent)!r}")
+                    summaries = [self._summary_of(peer, msg) for msg in response.summaries[: 2 * len(ids)]]
+                    unknown = np.asarray(response.unknown, dtype=np.int64).reshape(-1)[: len(ids)].tolist()
+                except (ServiceError, MessageError, ValueError, TypeError) as err:
+                    linker.catch_up_failed(peer, time.monotonic())
+                    self.counts["catch_up_failures"] += 1
+                    n = self.counts["catch_up_failures"]
+                    if n in (1, 10, 100) or n % 1000 == 0:
+                        log.info("%s: no keyframe summaries from %s (%d failed requests): %s", self.agent, peer, n, err)
+                    continue
+                good = [s for s in summaries if s is not None]
+                self.counts["caught_up_summaries"] += linker.catch_up_answered(peer, good, unknown, time.monotonic())
+                if len(good) < len(summaries):  # malformed ones: the peer is asked again, later
+                    linker.catch_up_failed(peer, time.monotonic())
+                    self.counts["catch_up_failures"] += 1
+
     # -- services -----------------------------------------------------------------------------------------------
     def on_save_map(self, request: Any) -> Any:
         with self._lock:
@@ -714,6 +788,8 @@ class SlamNode:
             self.frames = 0
             # A new map frame: a new graph epoch (peers drop what they had of this agent), no closures, not placed.
             self.graph_writer = GraphDeltaWriter()
+            self.summary_store = SummaryStore(self.config.collaboration.summary_store,
+                                              max_per_call=self.config.collaboration.catch_up_batch)  # fmt: skip
             self._constraints, self._pipeline_constraints, self._inter_agent, self._inter_agent_sent = [], 0, [], 0
             self.linker = InterAgentLinker(self.agent, self.config.collaboration)
             self._recognizer = None
