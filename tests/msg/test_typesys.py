@@ -149,6 +149,10 @@ OWN_HASHES = {
     "fleetslam_msgs/srv/SaveMap": "RIHS01_d610d53a3cfbc6580bae8d894bb394ef66eb3c76b8b4a3d538e641e3dfa27df3",
     "fleetslam_msgs/srv/ClearBbx": "RIHS01_5a9f7281918c9db4914931a3b64faca748b4b1b0271808e14db3a5bdda3dabea",
     "fleetslam_msgs/srv/GetGraph": "RIHS01_25d8c6f069b8083ccec601f1afd0bf17fc1d26f0e1c30999c30ba088e56917b4",
+    "fleetslam_msgs/msg/Finding": "RIHS01_c422378124f91dca23b64e135afa1f381348ce39e43d88ebcc2ae3be7e06e446",
+    "fleetslam_msgs/msg/FindingArray": "RIHS01_ea5441b06b4b8488b4a81f5b9ea46d9b58c9835d924d3a0d4545b780adaeadd8",
+    "fleetslam_msgs/srv/CreateFinding": "RIHS01_82ff938e003f4b932c292c00ba9232818ff2d9780fb32de9b2b242e51649ecb5",
+    "fleetslam_msgs/srv/UpdateFinding": "RIHS01_ecf1cde74fcf8de558e0d57ef4f09af380bbbbdc6a45f356d5045a247b7297ca",
 }
 
 
