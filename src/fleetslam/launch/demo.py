@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import TextIO
 
+from fleetslam.inspection.node import FindingsNode
 from fleetslam.launch.demo_monitor import (
     Monitor,
     OdometryTrack,
@@ -142,6 +143,7 @@ def run_demo(
         supervisor = Supervisor(processes, output=log_file)
         with Context(namespace="/", environ={**os.environ, **own_env}) as ctx:
             monitor = Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
+            findings = FindingsNode(ctx, out_dir / "findings")  # the operator's findings, served to every console
             start = time.monotonic()
             own_start = sample_process(os.getpid())
             supervisor_thread = threading.Thread(target=supervisor.run, kwargs={"poll_interval_s": 0.2}, daemon=True)
@@ -181,6 +183,7 @@ def run_demo(
             supervisor.stop()
             supervisor_thread.join(10)
             log_file.close()
+            findings.close()
             monitor.close()
             elapsed = time.monotonic() - start
     with monitor.lock:

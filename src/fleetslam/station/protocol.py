@@ -5,11 +5,13 @@ Browser ⇄ server messages are JSON objects with a ``type``:
 server → browser
   ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
   ``pose`` {agent, source, x, y, z, yaw}; ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
-  ``image`` {agent, kind: rgb|depth, mime, data (base64), seq}; ``stats`` {rows}; ``pong`` {t};
-  ``estop`` {agent, engaged, ok, message}
+  ``image`` {agent, kind: rgb|depth, mime, data (base64), seq, stamp (ns, a decimal string)}; ``stats`` {rows};
+  ``pong`` {t}; ``estop`` {agent, engaged, ok, message}; ``findings`` {findings}; ``finding_pick``,
+  ``finding_created``, ``finding_updated``, ``finding_photo`` (answers, see :mod:`fleetslam.station.findings`)
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
-  ``estop`` {agent, engage}
+  ``estop`` {agent, engage}; ``finding_pick`` {agent, stamp, u, v}; ``finding_create`` {pick, title, severity,
+  note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}
 """
 
 from __future__ import annotations

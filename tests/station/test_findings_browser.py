@@ -1,0 +1,182 @@
+"""Findings in a real headless Chromium: the operator clicks on the live camera image, fills in the form, and the
+finding lands where the camera really saw that pixel; it moves with its keyframe when the graph is corrected.
+
+The robot is a real node publishing what the simulator's would: colour and depth frames of a known scene (a tilted
+wall, rendered exactly: the depth of each pixel is where its ray meets the wall), the camera's intrinsics, SLAM's
+camera pose (of every other frame: the console interpolates) and the keyframe path. The camera moves all along, so
+the console must match the frame the operator saw with its depth and pose.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fleetslam import topics
+from fleetslam.geometry import pose_from_xyz_rpy, transform_points
+from fleetslam.inspection.node import FindingsNode
+from fleetslam.intrinsics import Intrinsics
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.msg.conversions import camera_info_msg, image_msg, odometry_msg, pose_msg, pose_msgs
+from fleetslam.msg.typesys import get_type, header
+from fleetslam.station.server import StationServer
+
+from ..support import wait_until
+from .conftest import save_screenshot
+
+INTRINSICS = Intrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
+WALL_NORMAL, WALL_OFFSET = np.array([1.0, -0.3, 0.1]), 3.0  # the wall: n · X = b in the map frame
+OPTICAL = pose_from_xyz_rpy(0.0, 0.0, 0.0, -np.pi / 2, 0.0, -np.pi / 2)  # optical axes of a camera looking along +x
+
+
+def camera_pose(t: float) -> np.ndarray:
+    """The camera in the map at time t (s): sways along x and turns a little."""
+    base = pose_from_xyz_rpy(0.5 + 0.3 * np.sin(0.5 * t), 0.1 * np.sin(0.3 * t), 0.3, 0.0, 0.0, 0.15 * np.sin(0.4 * t))
+    return base @ OPTICAL
+
+
+def wall_hit(T_map_camera: np.ndarray, u: float, v: float) -> np.ndarray:
+    """Where the ray of pixel (u, v) meets the wall, and the depth (optical z) there."""
+    ray = np.array([(u - INTRINSICS.cx) / INTRINSICS.fx, (v - INTRINSICS.cy) / INTRINSICS.fy, 1.0])
+    direction, origin = T_map_camera[:3, :3] @ ray, T_map_camera[:3, 3]
+    z = (WALL_OFFSET - WALL_NORMAL @ origin) / (WALL_NORMAL @ direction)
+    return np.append(origin + z * direction, z)
+
+
+def render(T_map_camera: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray]:
+    u, v = np.meshgrid(np.arange(INTRINSICS.width), np.arange(INTRINSICS.height))
+    rays = np.stack([(u - INTRINSICS.cx) / INTRINSICS.fx, (v - INTRINSICS.cy) / INTRINSICS.fy, np.ones(u.shape)], -1)
+    directions = rays @ T_map_camera[:3, :3].T
+    depth = (WALL_OFFSET - WALL_NORMAL @ T_map_camera[:3, 3]) / (directions @ WALL_NORMAL)
+    hits = T_map_camera[:3, 3] + depth[..., None] * directions
+    checker = ((np.floor(hits[..., 1] * 4) + np.floor(hits[..., 2] * 4)) % 2).astype(np.uint8)
+    rgb = np.stack([60 + 150 * checker, np.full(checker.shape, 90 + i % 50), 200 - 120 * checker], -1).astype(np.uint8)
+    return rgb, depth.astype(np.float32)
+
+
+KEYFRAMES = [pose_from_xyz_rpy(x, 0.0, 0.3, 0.0, 0.0, 0.0) @ OPTICAL for x in (0.2, 0.5, 0.8)]
+
+
+@dataclass
+class CameraRobot:
+    poses: dict[int, np.ndarray] = field(default_factory=dict)
+    """The camera's true pose at each frame's stamp (ns)."""
+    keyframes: list[np.ndarray] = field(default_factory=lambda: list(KEYFRAMES))
+
+
+@pytest.fixture
+def camera_robot(make_context: Callable[..., Context]) -> Iterator[CameraRobot]:
+    node = Node("robot", context=make_context("c3po"))
+    robot = CameraRobot()
+    qos = QoSProfile(depth=2)
+    rgb_pub = node.create_publisher(topics.RGB_IMAGE.type, topics.RGB_IMAGE.name, qos)
+    depth_pub = node.create_publisher(topics.DEPTH_IMAGE.type, topics.DEPTH_IMAGE.name, qos)
+    info_pub = node.create_publisher(topics.CAMERA_INFO.type, topics.CAMERA_INFO.name, qos)
+    odom_pub = node.create_publisher(topics.SLAM_ODOM.type, topics.SLAM_ODOM.name, qos)
+    path_pub = node.create_publisher(topics.PATH.type, topics.PATH.name, topics.PATH.qos())
+    stop = threading.Event()
+
+    def publish() -> None:
+        start_ns, i = time.time_ns(), 0
+        while not stop.is_set():
+            stamp = start_ns + i * 100_000_000
+            pose = camera_pose(i * 0.1)
+            robot.poses[stamp] = pose
+            rgb, depth = render(pose, i)
+            if i % 2 == 0:  # SLAM tracks every other frame: the console interpolates between them
+                odom_pub.publish(odometry_msg(pose_msg(pose), frame_id="map", child_frame_id="camera", stamp_ns=stamp))
+            info_pub.publish(camera_info_msg(INTRINSICS, frame_id="camera", stamp_ns=stamp))
+            depth_pub.publish(image_msg(depth, "32FC1", frame_id="camera", stamp_ns=stamp))
+            rgb_pub.publish(image_msg(rgb, "rgb8", frame_id="camera", stamp_ns=stamp))
+            if i % 5 == 0:
+                stamped = get_type("geometry_msgs/msg/PoseStamped")
+                h = header("map", stamp)
+                poses = [stamped(header=h, pose=p) for p in pose_msgs(robot.keyframes)]
+                path_pub.publish(get_type("nav_msgs/msg/Path")(header=h, poses=poses))
+            i += 1
+            time.sleep(0.1)
+
+    thread = threading.Thread(target=publish, daemon=True)
+    thread.start()
+    yield robot
+    stop.set()
+    thread.join()
+    node.destroy()
+
+
+def test_a_finding_clicked_on_the_camera_lands_where_the_camera_saw_it(
+    browser_page: Any, make_context: Callable[..., Context], camera_robot: CameraRobot, tmp_path: Path
+) -> None:
+    page, errors = browser_page
+    folder = tmp_path / "findings"
+    u, v = 100.0, 40.0  # the pixel the operator clicks
+    title = "<img src=x onerror=window.injected=1> cracked weld"
+    with (
+        FindingsNode(make_context(), folder, position_period_s=0.2) as findings_node,
+        StationServer(make_context(), port=0) as server,
+    ):
+        page.goto(server.url)
+        page.wait_for_function("window.fleetslam && window.fleetslam.lastFrameSeq > 2", timeout=30000)
+        assert page.evaluate("window.fleetslam.selected") == "c3po"
+        box = page.locator("#camera").bounding_box()
+        assert box is not None
+        scale = min(box["width"] / INTRINSICS.width, box["height"] / INTRINSICS.height)
+        left = (box["width"] - INTRINSICS.width * scale) / 2
+        top = (box["height"] - INTRINSICS.height * scale) / 2
+        page.click("#camera", position={"x": left + (u + 0.5) * scale, "y": top + (v + 0.5) * scale})
+        page.wait_for_selector("#finding-form:not([hidden])", timeout=10000)
+        page.fill("#finding-title", title)
+        page.select_option("#finding-severity", "high")
+        page.fill("#finding-note", "north flange, 2 cm")
+        page.click("#finding-save")
+        page.wait_for_function("window.fleetslam.findings.length === 1", timeout=20000)
+        page.wait_for_function("Object.values(window.fleetslam.findingMarkers()).every((p) => p)", timeout=20000)
+
+        finding = findings_node.store.get("F001")
+        assert (finding.title, finding.severity, finding.note, finding.agent) == (title, "high", "north flange, 2 cm",
+                                                                                  "c3po")  # fmt: skip
+        assert abs(finding.pixel[0] - u) < 0.6 and abs(finding.pixel[1] - v) < 0.6, finding.pixel
+        # The frame the operator clicked on is the one the finding was taken from: its pose gives the truth.
+        assert str(finding.stamp_ns) == page.evaluate("window.fleetslam.lastFindingPick.stamp")
+        truth = wall_hit(camera_robot.poses[finding.stamp_ns], u, v)[:3]
+        drawn = np.array(page.evaluate("window.fleetslam.findingMarkers()")["F001"])
+        error = np.linalg.norm(drawn - truth)
+        print(f"finding {error * 100:.2f} cm from the true point ({truth[0]:.2f}, {truth[1]:.2f}, {truth[2]:.2f})")
+        assert error < 0.05, (drawn, truth)
+        save_screenshot(page, tmp_path, "console-finding.png")
+
+        # The list shows it (as text: nothing injected), clicking it shows the photo.
+        assert page.evaluate("window.injected") is None
+        assert title in page.inner_text("#findings-list")
+        page.click("#findings-list li")
+        page.wait_for_function("document.getElementById('finding-photo').src.startsWith('data:image/jpeg')")
+        assert "north flange" in page.inner_text("#finding-text")
+
+        # The graph is corrected (a loop closure moves every keyframe): the finding moves with its keyframe.
+        correction = pose_from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.2)
+        camera_robot.keyframes = [correction @ k for k in KEYFRAMES]
+        moved = transform_points(correction, [drawn])[0]
+
+        def marker() -> np.ndarray:
+            return np.array(page.evaluate("window.fleetslam.findingMarkers()")["F001"])
+
+        assert wait_until(lambda: np.linalg.norm(marker() - moved) < 1e-3, 10.0), (marker(), moved)
+
+        def stored() -> list[float] | None:
+            position = json.loads((folder / "findings.json").read_text())["findings"][0]["position"]
+            return None if position is None else list(position)
+
+        assert wait_until(lambda: stored() is not None and np.linalg.norm(np.array(stored()) - moved) < 1e-3, 10.0)
+        # Closing it from the console reaches the fleet's store.
+        page.click("#finding-toggle")
+        assert wait_until(lambda: findings_node.store.get("F001").status == "closed", 10.0)
+    assert (folder / "F001.jpg").read_bytes()[:2] == b"\xff\xd8"
+    assert not errors, errors
