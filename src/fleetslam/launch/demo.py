@@ -9,7 +9,8 @@ any machine.
 At the end it writes the results folder: maps (``maps/<agent>.bt``, ``maps/fleet.bt``), trajectories and ground
 truth (TUM), a recording of the key topics (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's
 latest ``slam/diagnostics``), ``processes.json`` (CPU and peak memory of every process over the run),
-``report.md``/``report.html`` (with each robot's SLAM figures from its latest ``slam/diagnostics``) and plots.
+``report.md``/``report.html`` (with each robot's SLAM figures from its latest ``slam/diagnostics``), plots, the
+operator's findings (``findings/``) and the inspection report (``inspection/report.html``, ``report.pdf``).
 
 The jobs live in one module each: the process plan (:mod:`~fleetslam.launch.demo_plan`), the monitor
 (:mod:`~fleetslam.launch.demo_monitor`) and the results and report (:mod:`~fleetslam.launch.demo_report`); this
@@ -197,7 +198,25 @@ def run_demo(
         result.placements = monitor.placements()
         result.true_placements = true_placements(out_dir)
     write_results(result)
+    _write_inspection_report(out_dir, output)
     return result
+
+
+def _write_inspection_report(out_dir: Path, output: TextIO) -> None:
+    """The inspection report (findings, coverage, accuracy, network) in ``out_dir/inspection``: HTML, and a PDF
+    where Chromium is installed."""
+    from fleetslam.errors import FleetslamError
+    from fleetslam.inspection.report import ReportError, write_inspection_report
+
+    try:
+        html, pdf = write_inspection_report(out_dir)
+    except ReportError as err:
+        print(f"[demo] inspection report: {err}", file=output, flush=True)
+        return
+    except FleetslamError as err:
+        print(f"[demo] no inspection report: {err}", file=output, flush=True)
+        return
+    print(f"[demo] inspection report: {pdf or html}", file=output, flush=True)
 
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
