@@ -27,6 +27,7 @@ from fleetslam.intrinsics import Intrinsics
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.msg.conversions import camera_info_msg, image_msg, odometry_msg, pose_msg, pose_msgs
 from fleetslam.msg.typesys import get_type, header
+from fleetslam.station.protocol import VoxelDiff
 from fleetslam.station.server import StationServer
 
 from ..support import wait_until
@@ -179,4 +180,74 @@ def test_a_finding_clicked_on_the_camera_lands_where_the_camera_saw_it(
         page.click("#finding-toggle")
         assert wait_until(lambda: findings_node.store.get("F001").status == "closed", 10.0)
     assert (folder / "F001.jpg").read_bytes()[:2] == b"\xff\xd8"
+    assert not errors, errors
+
+
+def test_measuring_between_two_pixels_of_the_camera_image(
+    browser_page: Any, make_context: Callable[..., Context], camera_robot: CameraRobot
+) -> None:
+    """Two clicks on the image (the camera moves between them): the distance between the wall points seen there."""
+    page, errors = browser_page
+    with StationServer(make_context(), port=0) as server:
+        page.goto(server.url)
+        page.wait_for_function("window.fleetslam && window.fleetslam.lastFrameSeq > 2", timeout=30000)
+        page.check("#measure-toggle")
+        box = page.locator("#camera").bounding_box()
+        assert box is not None
+        scale = min(box["width"] / INTRINSICS.width, box["height"] / INTRINSICS.height)
+        left = (box["width"] - INTRINSICS.width * scale) / 2
+        top = (box["height"] - INTRINSICS.height * scale) / 2
+        picked = []
+        for u, v in ((20.0, 30.0), (140.0, 100.0)):
+            page.click("#camera", position={"x": left + (u + 0.5) * scale, "y": top + (v + 0.5) * scale})
+            count = len(picked) + 1
+            page.wait_for_function(f"window.fleetslam.measure.points.length === {count}", timeout=15000)
+            stamp = int(page.evaluate(f"window.fleetslam.measure.points[{count - 1}].stamp"))
+            picked.append(wall_hit(camera_robot.poses[stamp], u, v)[:3])
+            time.sleep(0.5)  # the camera moves on: the second pixel is of another frame
+        distance = page.evaluate("window.fleetslam.measure.distance")
+        truth = float(np.linalg.norm(picked[1] - picked[0]))
+        print(f"measured {distance:.3f} m, true {truth:.3f} m")
+        assert abs(distance - truth) < 0.05, (distance, truth)
+        assert page.inner_text("#measure-result") == f"distance {distance:.3f} m"
+    assert not errors, errors
+
+
+def _voxels_stable(page: Any) -> bool:
+    """Whether the map's voxel count stayed the same for a second and a half."""
+    first = page.evaluate("window.fleetslam.voxelCount")
+    time.sleep(1.5)
+    return bool(first > 0 and first == page.evaluate("window.fleetslam.voxelCount"))
+
+
+def test_measuring_between_two_voxels_of_the_3d_view(
+    browser_page: Any, make_context: Callable[..., Context], test_robot: Any
+) -> None:
+    """Two clicks on the map in the 3D view: the distance between the voxels under the pointer."""
+    page, errors = browser_page
+    # The voxels the console draws of the robot's block (conftest's test_robot), and two top corners of it.
+    grid = np.stack(np.meshgrid(np.arange(20), np.arange(10), [0, 1, 2], indexing="ij"), -1).reshape(-1, 3)
+    voxels = VoxelDiff(0.05)
+    voxels.update(((grid * 0.05 + 0.025) + [1.0, 0.0, 0.0]).astype(np.float32).astype(np.float64))
+    centres = voxels.snapshot()
+    top = centres[np.isclose(centres[:, 2], centres[:, 2].max())]
+    a, b = top[np.argmin(top[:, 0] + top[:, 1])], top[np.argmax(top[:, 0] + top[:, 1])]
+    with StationServer(make_context(), port=0) as server:
+        page.goto(server.url)
+        # The whole block has arrived (the robot sends it growing, 20 points a frame): its voxels stop changing.
+        # The whole block has arrived (the robot sends it growing, 20 points a frame): the count stops changing.
+        page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=30000)
+        assert wait_until(lambda: _voxels_stable(page), 30.0, 0.1)
+        page.check("#measure-toggle")
+        for count, point in enumerate((a, b), start=1):
+            x, y = page.evaluate(f"window.fleetslam.screenOf({point[0]}, {point[1]}, {point[2]})")
+            page.mouse.click(x, y)
+            page.wait_for_function(f"window.fleetslam.measure.points.length === {count}", timeout=10000)
+        distance = page.evaluate("window.fleetslam.measure.distance")
+        picked = np.array(page.evaluate("window.fleetslam.measure.points.map((p) => p.world)"))
+        truth = float(np.linalg.norm(b - a))
+        print(f"measured {distance:.3f} m on the map, true {truth:.3f} m; picked {picked.round(3).tolist()}")
+        # The voxel under the pointer, or a neighbour along the ray (at most one voxel away in each axis).
+        assert np.linalg.norm(picked - [a, b], axis=1).max() < 0.09, picked
+        assert abs(distance - np.linalg.norm(picked[1] - picked[0])) < 1e-6
     assert not errors, errors

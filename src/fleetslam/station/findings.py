@@ -182,7 +182,7 @@ class FindingsDesk:
             "point": np.round(pick.point_camera, 4).tolist(), "crop": base64.b64encode(pick.crop).decode(),
         }  # fmt: skip
 
-    def _pick(self, agent: str, stamp_ns: int, u: float, v: float) -> Pick:
+    def _pick(self, agent: str, stamp_ns: int, u: float, v: float, *, photos: bool = True) -> Pick:
         with self._lock:
             feed = self._feeds.get(agent)
             if feed is None or not feed.rgb:
@@ -205,7 +205,21 @@ class FindingsDesk:
         z = in_depth[2]
         colour = intrinsics.scaled(rgb.shape[1], rgb.shape[0])
         point = np.array([(u - colour.cx) / colour.fx * z, (v - colour.cy) / colour.fy * z, z])
+        if not photos:
+            return Pick(agent, rgb_stamp, u, v, point, b"", b"")
         return Pick(agent, rgb_stamp, u, v, point, _jpeg(rgb), _jpeg(crop_around(rgb, u, v)))
+
+    def locate(self, agent: str, stamp_ns: int, u: float, v: float) -> dict[str, Any]:
+        """Measuring: the point at pixel ``(u, v)`` of the frame stamped ``stamp_ns``, in the agent's map frame (where
+        its keyframes are drawn), so that two picks on different frames can be measured between."""
+        try:
+            pick = self._pick(agent, stamp_ns, u, v, photos=False)
+            T_map_camera = self._pose_at(agent, pick.stamp_ns)
+        except (FindingError, MessageError, ValueError) as err:
+            return {"type": "measure_point", "ok": False, "message": str(err)}
+        in_map = T_map_camera[:3, :3] @ pick.point_camera + T_map_camera[:3, 3]
+        return {"type": "measure_point", "ok": True, "message": "", "agent": agent, "stamp": str(pick.stamp_ns),
+                "point": np.round(in_map, 4).tolist(), "range": round(float(pick.point_camera[2]), 4)}  # fmt: skip
 
     def create(self, pick_id: str, title: str, severity: str, note: str) -> dict[str, Any]:
         """Anchor a pick to its keyframe and record it with the findings service."""

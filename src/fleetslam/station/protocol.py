@@ -7,11 +7,13 @@ server → browser
   ``pose`` {agent, source, x, y, z, yaw}; ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
   ``image`` {agent, kind: rgb|depth, mime, data (base64), seq, stamp (ns, a decimal string)}; ``stats`` {rows};
   ``pong`` {t}; ``estop`` {agent, engaged, ok, message}; ``findings`` {findings}; ``finding_pick``,
-  ``finding_created``, ``finding_updated``, ``finding_photo`` (answers, see :mod:`fleetslam.station.findings`)
+  ``finding_created``, ``finding_updated``, ``finding_photo``, ``measure_point`` {ok, message, agent, stamp, point
+  (map frame), range} (answers, see :mod:`fleetslam.station.findings`)
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
   ``estop`` {agent, engage}; ``finding_pick`` {agent, stamp, u, v}; ``finding_create`` {pick, title, severity,
-  note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}
+  note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}; ``measure_pick``
+  {agent, stamp, u, v}
 """
 
 from __future__ import annotations

@@ -217,7 +217,7 @@ class StationServer:
             await client.socket.send_str(
                 json.dumps({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
             )
-        elif kind.startswith("finding_") and bridge is not None:
+        elif (kind.startswith("finding_") or kind == "measure_pick") and bridge is not None:
             await self._on_finding_message(client, kind, message)
 
     # -- findings (fleetslam.station.findings) ---------------------------------------------------------------
@@ -240,6 +240,10 @@ class StationServer:
                 reply = await asyncio.to_thread(desk.update, str(message["id"]), message)
             elif kind == "finding_photo":
                 reply = desk.photo(str(message["id"]))
+            elif kind == "measure_pick":
+                reply = await asyncio.to_thread(
+                    desk.locate, str(message["agent"]), int(message["stamp"]), float(message["u"]), float(message["v"])
+                )
             else:
                 return
         except (KeyError, TypeError, ValueError) as err:

@@ -479,6 +479,10 @@ document.getElementById("camera").addEventListener("click", (event) => {
   const frame = findings.frame;
   const pixel = imagePixel(event.currentTarget, event);
   if (!frame || !pixel) return;
+  if (measure.on) {
+    send({ type: "measure_pick", agent: frame.agent, stamp: frame.stamp, u: pixel.u, v: pixel.v });
+    return;
+  }
   findingMessage(`picking (${pixel.u.toFixed(0)}, ${pixel.v.toFixed(0)})…`);
   state.lastFindingPick = { agent: frame.agent, stamp: frame.stamp, u: pixel.u, v: pixel.v };
   send({ type: "finding_pick", ...state.lastFindingPick });
@@ -537,9 +541,76 @@ function findingsOnMessage(msg) {
     case "finding_created": onFindingCreated(msg); return true;
     case "finding_updated": findingMessage(msg.message, !msg.ok); return true;
     case "finding_photo": onFindingPhoto(msg); return true;
+    case "measure_point": onMeasurePoint(msg); return true;
   }
   return false;
 }
+
+// ---------------------------------------------------------------- measure
+// With "measure" on, two points picked on the camera image (the depth there, placed by SLAM's pose of that frame) or
+// in the 3D view (the nearest voxel under the pointer) give their distance, drawn as a line.
+const measure = { on: false, points: [], objects: [], distance: null };
+state.measure = measure;
+function measureText() {
+  const box = document.getElementById("measure-result");
+  box.hidden = !measure.on;
+  if (measure.distance !== null) box.textContent = `distance ${measure.distance.toFixed(3)} m`;
+  else box.textContent = measure.points.length ? "measure: pick the second point" : "measure: pick two points on the camera image or the map";
+}
+function resetMeasure() {
+  for (const o of measure.objects) { scene.remove(o); o.geometry.dispose(); o.material.dispose(); }
+  measure.objects = []; measure.points = []; measure.distance = null;
+  state.sceneChanged = true;
+  measureText();
+}
+function addMeasurePoint(point) {
+  if (measure.points.length >= 2) resetMeasure();
+  measure.points.push(point);
+  const world = new THREE.Vector3(...point.world);
+  const dot = new THREE.Mesh(new THREE.SphereGeometry(0.05, 12, 8), new THREE.MeshBasicMaterial({ color: 0xffe066 }));
+  dot.position.copy(world);
+  scene.add(dot);
+  measure.objects.push(dot);
+  if (measure.points.length === 2) {
+    const [a, b] = measure.points.map((p) => new THREE.Vector3(...p.world));
+    const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints([a, b]), new THREE.LineBasicMaterial({ color: 0xffe066 }));
+    scene.add(line);
+    measure.objects.push(line);
+    measure.distance = a.distanceTo(b);
+  }
+  state.sceneChanged = true;
+  measureText();
+}
+document.getElementById("measure-toggle").onchange = (e) => { measure.on = e.target.checked; resetMeasure(); };
+// A point of the image arrives in the agent's map frame: drawn where that agent's findings are.
+function onMeasurePoint(msg) {
+  if (!msg.ok) { findingMessage(msg.message, true); return; }
+  findingMessage("");
+  const world = findingParent(msg.agent).localToWorld(new THREE.Vector3(...msg.point));
+  addMeasurePoint({ source: "image", agent: msg.agent, stamp: msg.stamp, world: [world.x, world.y, world.z] });
+}
+// Where a point of the scene is on the screen (client pixels; for tests and the curious).
+state.screenOf = (x, y, z) => {
+  const p = new THREE.Vector3(x, y, z).project(camera3d), rect = renderer.domElement.getBoundingClientRect();
+  return [rect.left + ((p.x + 1) / 2) * rect.width, rect.top + ((1 - p.y) / 2) * rect.height];
+};
+// The 3D view: a click (not a drag of the view) picks the nearest voxel under the pointer.
+const measureRay = new THREE.Raycaster();
+let measureDown = null;
+renderer.domElement.addEventListener("pointerdown", (e) => { measureDown = [e.clientX, e.clientY]; });
+renderer.domElement.addEventListener("pointerup", (e) => {
+  if (!measure.on || !measureDown || Math.hypot(e.clientX - measureDown[0], e.clientY - measureDown[1]) > 4) return;
+  const rect = renderer.domElement.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((e.clientX - rect.left) / rect.width) * 2 - 1, -((e.clientY - rect.top) / rect.height) * 2 + 1);
+  measureRay.setFromCamera(ndc, camera3d);
+  const clouds = [...agentViews.values()].map((v) => v.cloud).filter(Boolean);
+  measureRay.params.Points.threshold = 0.5 * Math.max(...[...agentViews.values()].map((v) => v.size), 0.05);
+  const hit = measureRay.intersectObjects(clouds, false)[0];
+  if (!hit) { findingMessage("measure: no map under the pointer", true); return; }
+  const voxel = new THREE.Vector3().fromBufferAttribute(hit.object.geometry.attributes.position, hit.index).applyMatrix4(hit.object.matrixWorld);
+  findingMessage("");
+  addMeasurePoint({ source: "map", world: [voxel.x, voxel.y, voxel.z] });
+});
 
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
