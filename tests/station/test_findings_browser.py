@@ -251,3 +251,110 @@ def test_measuring_between_two_voxels_of_the_3d_view(
         assert np.linalg.norm(picked - [a, b], axis=1).max() < 0.09, picked
         assert abs(distance - np.linalg.norm(picked[1] - picked[0])) < 1e-6
     assert not errors, errors
+
+
+@dataclass
+class SimCamera:
+    plant: Any
+    T_world_camera: np.ndarray
+    intrinsics: Intrinsics
+    keyframes: list[np.ndarray] = field(default_factory=list)
+
+
+@pytest.fixture
+def sim_camera(make_context: Callable[..., Context]) -> Iterator[SimCamera]:
+    """c3po standing in the simulator's hall: its camera's frames (MuJoCo rendering, the Kinect depth model) published
+    as the simulator node would, SLAM's pose taken as the true one (the console is under test, not SLAM)."""
+    pytest.importorskip("mujoco")
+    from fleetslam.sim.config import RobotPlacement, SimConfig
+    from fleetslam.sim.plant import Plant
+
+    plant = Plant(SimConfig(), [RobotPlacement(name="c3po", x=-12.0, y=-7.5, yaw=-np.pi / 2)], controllers=False)
+    plant.step(0.2)
+    camera = SimCamera(plant, plant.camera_pose("c3po"), plant.intrinsics_at(160, 120))
+    camera.keyframes = [
+        camera.T_world_camera @ pose_from_xyz_rpy(-0.2, 0.0, -0.3, 0.0, 0.0, 0.0),
+        camera.T_world_camera,
+    ]
+    node = Node("sim", context=make_context("c3po"))
+    qos = QoSProfile(depth=2)
+    rgb_pub = node.create_publisher(topics.RGB_IMAGE.type, topics.RGB_IMAGE.name, qos)
+    depth_pub = node.create_publisher(topics.DEPTH_IMAGE.type, topics.DEPTH_IMAGE.name, qos)
+    info_pub = node.create_publisher(topics.CAMERA_INFO.type, topics.CAMERA_INFO.name, qos)
+    odom_pub = node.create_publisher(topics.SLAM_ODOM.type, topics.SLAM_ODOM.name, qos)
+    path_pub = node.create_publisher(topics.PATH.type, topics.PATH.name, topics.PATH.qos())
+    stop = threading.Event()
+
+    def publish() -> None:
+        i = 0
+        while not stop.is_set():
+            frame = plant.render("c3po", width=160, height=120)  # MuJoCo's GL context lives in this thread
+            stamp = time.time_ns()
+            pose = pose_msg(frame.T_world_camera)
+            odom_pub.publish(odometry_msg(pose, frame_id="map", child_frame_id="camera", stamp_ns=stamp))
+            info_pub.publish(camera_info_msg(frame.intrinsics, frame_id="camera", stamp_ns=stamp))
+            depth_pub.publish(image_msg(frame.depth, "32FC1", frame_id="camera", stamp_ns=stamp))
+            rgb_pub.publish(image_msg(frame.rgb, "rgb8", frame_id="camera", stamp_ns=stamp))
+            if i % 3 == 0:
+                stamped = get_type("geometry_msgs/msg/PoseStamped")
+                h = header("map", stamp)
+                poses = [stamped(header=h, pose=p) for p in pose_msgs(camera.keyframes)]
+                path_pub.publish(get_type("nav_msgs/msg/Path")(header=h, poses=poses))
+            i += 1
+            time.sleep(0.2)
+
+    thread = threading.Thread(target=publish, daemon=True)
+    thread.start()
+    yield camera
+    stop.set()
+    thread.join()
+    node.destroy()
+    plant.close()
+
+
+def test_a_finding_in_the_simulated_hall_lands_on_the_simulators_geometry(
+    browser_page: Any, make_context: Callable[..., Context], sim_camera: SimCamera, tmp_path: Path
+) -> None:
+    """The simulator's own ray cast (MuJoCo's mj_ray against the hall's geometry) is the truth; the console's point
+    comes from the noisy Kinect-model depth at the clicked pixel."""
+    import mujoco
+
+    page, errors = browser_page
+    u, v = 100.0, 40.0
+    K, T = sim_camera.intrinsics, sim_camera.T_world_camera
+    direction = T[:3, :3] @ np.array([(u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0])
+    body = sim_camera.plant.robot("c3po").body_id
+    scale = mujoco.mj_ray(sim_camera.plant.model, sim_camera.plant.data, T[:3, 3], direction, None, 1, body,
+                          np.zeros(1, np.int32))  # fmt: skip
+    assert 0.5 < scale < 4.0, f"pixel ({u}, {v}) sees nothing in the camera's range ({scale} m)"
+    truth = T[:3, 3] + scale * direction
+    with (
+        FindingsNode(make_context(), tmp_path / "findings") as findings_node,
+        StationServer(make_context(), port=0) as server,
+    ):
+        page.goto(server.url)
+        page.wait_for_function("window.fleetslam && window.fleetslam.lastFrameSeq > 2", timeout=60000)
+        box = page.locator("#camera").bounding_box()
+        assert box is not None
+        px = min(box["width"] / K.width, box["height"] / K.height)
+        left, top = (box["width"] - K.width * px) / 2, (box["height"] - K.height * px) / 2
+        page.click("#camera", position={"x": left + (u + 0.5) * px, "y": top + (v + 0.5) * px})
+        page.wait_for_selector("#finding-form:not([hidden])", timeout=15000)
+        page.fill("#finding-title", "oil stain")
+        page.click("#finding-save")
+        page.wait_for_function("Object.values(window.fleetslam.findingMarkers()).some((p) => p)", timeout=30000)
+        drawn = np.array(page.evaluate("window.fleetslam.findingMarkers()")["F001"])
+        error = float(np.linalg.norm(drawn - truth))
+        print(f"finding {error * 100:.2f} cm from the simulator's point {truth.round(3).tolist()}")
+        assert error < 0.05, (drawn, truth)
+        save_screenshot(page, tmp_path, "console-finding-sim.png")
+        # A loop closure moves the keyframes: the finding follows its keyframe.
+        correction = pose_from_xyz_rpy(0.0, 0.5, 0.0, 0.0, 0.0, -0.1)
+        sim_camera.keyframes = [correction @ k for k in sim_camera.keyframes]
+        moved = transform_points(correction, [drawn])[0]
+        assert wait_until(
+            lambda: np.linalg.norm(np.array(page.evaluate("window.fleetslam.findingMarkers()")["F001"]) - moved) < 1e-3,
+            15.0,
+        )
+        assert findings_node.store.get("F001").title == "oil stain"
+    assert not errors, errors
