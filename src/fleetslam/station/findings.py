@@ -145,18 +145,12 @@ class FindingsDesk:
         stamp, pose = ns_from_stamp(msg.header.stamp), pose_matrix(msg.pose.pose)
         with self._lock:
             feed = self._feed(agent)
-            if feed.pose_stamps and stamp <= feed.pose_stamps[-1]:
-                if stamp < feed.pose_stamps[0]:
-                    return
-                i = bisect.bisect_left(feed.pose_stamps, stamp)
-                if i < len(feed.pose_stamps) and feed.pose_stamps[i] == stamp:
-                    feed.poses[i] = pose
-                    return
-                feed.pose_stamps.insert(i, stamp)
-                feed.poses.insert(i, pose)
-            else:
-                feed.pose_stamps.append(stamp)
-                feed.poses.append(pose)
+            i = bisect.bisect_left(feed.pose_stamps, stamp)  # in stamp order (at the end, unless it came late)
+            if i < len(feed.pose_stamps) and feed.pose_stamps[i] == stamp:
+                feed.poses[i] = pose
+                return
+            feed.pose_stamps.insert(i, stamp)
+            feed.poses.insert(i, pose)
             del feed.pose_stamps[:-POSES_KEPT], feed.poses[:-POSES_KEPT]
 
     def record_keyframes(self, agent: str, poses: list[Any]) -> None:
