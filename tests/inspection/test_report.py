@@ -43,6 +43,10 @@ def _run(tmp_path: Path) -> Path:
         id="", title="Missing guard", severity="low", status="", note="", agent="r2d2", keyframe_id=1,
         point=(0.0, 0.0, 1.0), pixel=(10.0, 20.0), stamp_ns=1_764_000_060_000_000_000,
     ))  # fmt: skip
+    store.create(Finding(
+        id="", title="Loose cable", severity="info", status="", note="", agent="c3po", keyframe_id=0,
+        point=(0.0, 0.0, 1.0), pixel=(1.0, 2.0), stamp_ns=23_800_000_000,  # the simulator's clock
+    ))  # fmt: skip
     store.close("F002", note="fitted")
     store.set_positions({"F001": (np.array([2.0, 1.0, 0.5]), None), "F002": (np.array([1.0, 0.0, 0.3]), None)})
     store.save()
@@ -78,12 +82,14 @@ def _run(tmp_path: Path) -> Path:
 
 def test_the_report_holds_every_finding_placed_in_the_fleet_frame(tmp_path: Path) -> None:
     report = build_report(_run(tmp_path))
-    first, second = report.findings
+    first, second, third = report.findings
+    assert third.time == "t = 23.8 s (simulated clock)" and third.where.startswith("unknown")
     assert first.where == "(2.00, 1.00, 0.50) m in the fleet frame"  # c3po's map is the fleet frame
     assert second.where == "(4.00, 0.00, 0.30) m in the fleet frame"  # r2d2's, placed 3 m along x
     assert first.photo.startswith("data:image/jpeg;base64,") and second.photo == ""
+    assert (first.time, second.time) == ("2025-11-24 16:00:00 UTC", "2025-11-24 16:01:00 UTC")
     assert report.overview.startswith("data:image/png;base64,")
-    assert [row[0] for row in report.summary.rows] == ["critical", "low"]
+    assert [row[0] for row in report.summary.rows] == ["critical", "low", "info"]
     accuracy = {row[0]: row for row in report.accuracy.rows}
     assert accuracy["r2d2"][-1] == "0.020" and accuracy["c3po"][2] == "41"
     assert 0.0 < float(accuracy["c3po"][1]) < 0.01

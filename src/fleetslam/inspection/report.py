@@ -38,6 +38,8 @@ log = logging.getLogger(__name__)
 __all__ = ["InspectionReport", "ReportError", "build_report", "print_pdf", "render_html", "write_inspection_report"]
 
 MISSING = "—"
+SIMULATED_CLOCK_BEFORE_NS = 10**18
+"""Stamps before this (September 2001) are a simulated clock's, counted from the simulation's start."""
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -275,6 +277,13 @@ def _network(run: Path) -> Table:
     return table
 
 
+def _time_text(stamp_ns: int) -> str:
+    """A stamp as a UTC date, or, before 2001, as a simulated clock's seconds since the simulation started."""
+    if stamp_ns < SIMULATED_CLOCK_BEFORE_NS:
+        return f"t = {stamp_ns / 1e9:.1f} s (simulated clock)"
+    return dt.datetime.fromtimestamp(stamp_ns / 1e9, tz=dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
 def build_report(run: Path) -> InspectionReport:
     """The inspection report of the run in ``run`` (a directory a demo or a session wrote)."""
     if not run.is_dir():
@@ -293,7 +302,7 @@ def build_report(run: Path) -> InspectionReport:
             where = f"{_fmt(finding.position)} m in {finding.agent}'s map (not placed in the fleet frame)"
         else:
             where = "unknown (its keyframe's pose never arrived)"
-        when = dt.datetime.fromtimestamp(finding.stamp_ns / 1e9, tz=dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+        when = _time_text(finding.stamp_ns)
         shown.append(ReportFinding(number, finding, where, when, _data_url(finding.photo, "image/jpeg"),
                                    _data_url(finding.crop, "image/jpeg")))  # fmt: skip
     summary = Table(("severity", "open", "closed"))

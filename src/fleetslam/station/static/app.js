@@ -390,7 +390,9 @@ function placeFindings() {
     f.position = findingPosition(f);
     let marker = findings.markers.get(f.id);
     if (!marker) {
-      marker = new THREE.Mesh(new THREE.SphereGeometry(0.09, 16, 12), new THREE.MeshLambertMaterial({ color: 0xffffff }));
+      // Drawn over the map (no depth test): a finding inside a wall of voxels stays visible.
+      marker = new THREE.Mesh(new THREE.SphereGeometry(0.13, 16, 12), new THREE.MeshBasicMaterial({ color: 0xffffff, depthTest: false }));
+      marker.renderOrder = 10;
       marker.userData.findingId = f.id;
       findingParent(f.agent).add(marker);
       findings.markers.set(f.id, marker);
@@ -436,11 +438,15 @@ function showFindingText(f) {
   detail.hidden = !f;
   if (!f) return;
   const where = f.position ? f.position.map((c) => c.toFixed(2)).join(", ") : "(keyframe not known yet)";
-  const time = new Date(f.stamp_ns / 1e6).toLocaleString();
+  const time = findingTime(f.stamp_ns);
   document.getElementById("finding-text").textContent =
     `${f.id} · ${f.title}\n${f.severity} · ${f.status} · ${f.agent}, keyframe ${f.keyframe_id} · ${time}\n` +
     `at (${where}) m in ${f.agent}'s map\n${f.note}`;
   document.getElementById("finding-toggle").textContent = f.status === "open" ? "close finding" : "reopen";
+}
+// A stamp before 2001 is a simulated clock's (seconds since the simulation started), not a date.
+function findingTime(stampNs) {
+  return stampNs < 1e18 ? `t = ${(stampNs / 1e9).toFixed(1)} s (simulated clock)` : new Date(stampNs / 1e6).toLocaleString();
 }
 function flyTo(position) {
   const target = new THREE.Vector3(position[0], position[1], position[2]);
