@@ -23,6 +23,7 @@ PURE = (
     "datasets",
     "drivers",
     "eval",
+    "inspection",
     "msg",
     "geometry.py",
     "trajectory.py",

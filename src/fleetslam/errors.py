@@ -66,3 +66,7 @@ class MissingExtraError(FleetslamError):
 
 class UnsafePathError(FleetslamError):
     """A file name given by a request (a service's save path) would leave its directory or is not a plain name."""
+
+
+class FindingError(FleetslamError):
+    """An inspection finding is invalid (a field's value) or unknown, or the findings file is malformed."""

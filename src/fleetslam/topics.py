@@ -26,6 +26,7 @@ __all__ = [
     "CMD_VEL_STAMPED",
     "DEPTH_CAMERA_INFO",
     "DEPTH_IMAGE",
+    "FINDINGS",
     "FLEET_MAP_OCCUPIED",
     "FLEET_MAP_OCTOMAP",
     "FLEET_POSE",
@@ -156,6 +157,9 @@ FLEET_MAP_OCCUPIED = Topic("/fleet/map/occupied", "sensor_msgs/msg/PointCloud2",
                            content="the fused map", flow="fleet map → station")  # fmt: skip
 FLEET_MAP_OCTOMAP = Topic("/fleet/map/octomap", "octomap_msgs/msg/Octomap", 1, "transient_local",
                           content="the fused map", flow="fleet map → viewers")  # fmt: skip
+FINDINGS = Topic("/fleet/findings", "fleetslam_msgs/msg/FindingArray", 1, "transient_local",
+                 content="every inspection finding, latest state, photos included; on change",
+                 flow="findings service → station, report")  # fmt: skip
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", 1, content="sim time, when simulated", flow="sim → every node")
 
 AGENT_TOPICS: tuple[Topic, ...] = (
@@ -164,7 +168,7 @@ AGENT_TOPICS: tuple[Topic, ...] = (
     GRAPH, GRAPH_UPDATES, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
 )  # fmt: skip
 """The topics of one agent, in its namespace."""
-FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, CLOCK)
+FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, FINDINGS, CLOCK)
 """The fleet-level topics (absolute names)."""
 
 

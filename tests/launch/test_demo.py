@@ -47,6 +47,10 @@ def test_headless_demo_writes_results(tmp_path: Path) -> None:
     assert "| c3po | /c3po/graph |" in report
     assert (tmp_path / "run" / "bandwidth.png").stat().st_size > 1000
     assert "[demo" in out.getvalue()
+    # The inspection report, with no finding recorded (the findings service ran: its file is written).
+    assert json.loads((tmp_path / "run" / "findings" / "findings.json").read_text())["findings"] == []
+    assert "No findings were recorded" in (tmp_path / "run" / "inspection" / "report.html").read_text()
+    assert "[demo] inspection report: " in out.getvalue()
 
 
 def test_headless_simulated_demo_produces_every_result(tmp_path: Path) -> None:

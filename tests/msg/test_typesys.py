@@ -152,6 +152,10 @@ OWN_HASHES = {
     "fleetslam_msgs/srv/GetKeyframeSummaries": (
         "RIHS01_928513aad536422b553cf0e2a3a107dfb779f34f562678b24f0c4a15b04fa451"
     ),
+    "fleetslam_msgs/msg/Finding": "RIHS01_c422378124f91dca23b64e135afa1f381348ce39e43d88ebcc2ae3be7e06e446",
+    "fleetslam_msgs/msg/FindingArray": "RIHS01_ea5441b06b4b8488b4a81f5b9ea46d9b58c9835d924d3a0d4545b780adaeadd8",
+    "fleetslam_msgs/srv/CreateFinding": "RIHS01_82ff938e003f4b932c292c00ba9232818ff2d9780fb32de9b2b242e51649ecb5",
+    "fleetslam_msgs/srv/UpdateFinding": "RIHS01_ecf1cde74fcf8de558e0d57ef4f09af380bbbbdc6a45f356d5045a247b7297ca",
 }
 
 

@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "slam": ("fleetslam.cli.slam", "run the RGB-D graph SLAM offline or as a node"),
     "map": ("fleetslam.cli.map", "build, inspect and convert occupancy octree maps"),
     "eval": ("fleetslam.cli.eval", "evaluate trajectories (APE/RPE, TUM conventions)"),
+    "report": ("fleetslam.cli.report", "write a run's inspection report (HTML and PDF)"),
     "fleet": ("fleetslam.cli.fleet", "fuse the agents' maps into the fleet map"),
     "launch": ("fleetslam.cli.launch", "launch and supervise a fleet from a YAML description"),
     "station": ("fleetslam.cli.station", "run the operator web console"),

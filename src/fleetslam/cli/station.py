@@ -7,6 +7,7 @@ import contextlib
 import os
 import signal
 import threading
+from pathlib import Path
 
 from fleetslam.errors import ConfigError
 from fleetslam.middleware import Context
@@ -29,6 +30,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--allow-origin", action="append", default=[], metavar="URL",
         help="another origin (scheme://host:port) whose pages may use the console, e.g. behind a reverse proxy",
     )  # fmt: skip
+    parser.add_argument(
+        "--findings", type=Path, metavar="DIR",
+        help="serve the fleet's findings from this console, kept in DIR (findings.json and photos); without it, "
+        "another process (the demo) serves them",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
@@ -40,7 +46,13 @@ def run(args: argparse.Namespace) -> int:
         access = ConsoleAccess.create(args.token, args.allow_origin)
     except ValueError as err:
         raise ConfigError(f"--token / FLEETSLAM_STATION_TOKEN: {err}") from err
-    with Context() as ctx, StationServer(ctx, host=args.host, port=args.port, limits=limits, access=access) as server:
+    with contextlib.ExitStack() as stack:
+        ctx = stack.enter_context(Context())
+        if args.findings is not None:
+            from fleetslam.inspection.node import FindingsNode
+
+            stack.enter_context(FindingsNode(ctx, args.findings))
+        server = stack.enter_context(StationServer(ctx, host=args.host, port=args.port, limits=limits, access=access))
         print(f"operator console: {server.url}", flush=True)
         with contextlib.suppress(KeyboardInterrupt):
             stop.wait()

@@ -11,7 +11,8 @@ truth (TUM; the placed robots' also in the fleet frame, ``fleet_trajectories/``)
 (rosbag2 + MCAP), ``statistics.json``, ``slam.json`` (each robot's latest ``slam/diagnostics``), ``processes.json``
 (CPU and peak memory of every process over the run), ``report.md``/``report.html`` (with each robot's SLAM figures
 from its latest ``slam/diagnostics``, per agent pair the first merge and the closures accepted and rejected, per agent
-the bytes exchanged per keyframe, the fleet ATE) and plots.
+the bytes exchanged per keyframe, the fleet ATE), plots, the operator's findings (``findings/``) and the inspection
+report (``inspection/report.html``, ``report.pdf``).
 
 The jobs live in one module each: the process plan (:mod:`~fleetslam.launch.demo_plan`), the monitor
 (:mod:`~fleetslam.launch.demo_monitor`) and the results and report (:mod:`~fleetslam.launch.demo_report`); this
@@ -31,6 +32,7 @@ from typing import TextIO
 import numpy as np
 from numpy.typing import NDArray
 
+from fleetslam.inspection.node import FindingsNode
 from fleetslam.launch.demo_monitor import (
     Monitor,
     OdometryTrack,
@@ -150,6 +152,7 @@ def run_demo(
         supervisor = Supervisor(processes, output=log_file)
         with Context(namespace="/", environ={**os.environ, **own_env}) as ctx:
             monitor = Monitor(ctx, robots, out_dir / "recording" if mode == "sim" else None)
+            findings = FindingsNode(ctx, out_dir / "findings")  # the operator's findings, served to every console
             start = time.monotonic()
             own_start = sample_process(os.getpid())
             supervisor_thread = threading.Thread(target=supervisor.run, kwargs={"poll_interval_s": 0.2}, daemon=True)
@@ -189,6 +192,7 @@ def run_demo(
             supervisor.stop()
             supervisor_thread.join(10)
             log_file.close()
+            findings.close()
             monitor.close()
             elapsed = time.monotonic() - start
     with monitor.lock:
@@ -206,6 +210,7 @@ def run_demo(
         if result.placements:
             result.fleet = write_fleet_trajectories(out_dir, result.placements, result.placed_stamps)
     write_results(result)
+    _write_inspection_report(out_dir, output)
     return result
 
 
@@ -226,6 +231,23 @@ def simulator_ground_truth(
             continue
         out[f"{robot}/truth"] = (truth.stamps, truth.poses)
     return out
+
+
+def _write_inspection_report(out_dir: Path, output: TextIO) -> None:
+    """The inspection report (findings, coverage, accuracy, network) in ``out_dir/inspection``: HTML, and a PDF
+    where Chromium is installed."""
+    from fleetslam.errors import FleetslamError
+    from fleetslam.inspection.report import ReportError, write_inspection_report
+
+    try:
+        html, pdf = write_inspection_report(out_dir)
+    except ReportError as err:
+        print(f"[demo] inspection report: {err}", file=output, flush=True)
+        return
+    except FleetslamError as err:
+        print(f"[demo] no inspection report: {err}", file=output, flush=True)
+        return
+    print(f"[demo] inspection report: {pdf or html}", file=output, flush=True)
 
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:

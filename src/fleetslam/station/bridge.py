@@ -32,7 +32,8 @@ from fleetslam.msg.conversions import (
     rgb_from_image,
     transform_matrix,
 )
-from fleetslam.msg.typesys import deserialize, get_type
+from fleetslam.msg.typesys import deserialize, get_type, ns_from_stamp
+from fleetslam.station.findings import FindingsDesk
 from fleetslam.station.protocol import TeleopGate, TeleopLimits, VoxelDiff, yaw_from_quaternion
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,8 @@ class StationBridge:
         self._estop_clients: dict[str, Any] = {}
         self._twist = get_type("geometry_msgs/msg/Twist")
         self._vector = get_type("geometry_msgs/msg/Vector3")
+        self.findings = FindingsDesk(self.node, emit)
+        """Findings: picks on the camera image, the fleet's findings (fleetslam.station.findings)."""
         statistics = topics.STATISTICS
         self.node.create_subscription(statistics.type, statistics.name, self._on_statistics, statistics.qos(depth=1000))
         self._add_agent(FLEET_AGENT, fleet=True)
@@ -124,6 +127,7 @@ class StationBridge:
         sub(cloud.type, cloud.of(name), lambda m: self._on_cloud(view, m), cloud.qos(depth=1))
         if fleet:
             return
+        self.findings.watch(name)
         for source, odom in (("odom", topics.ODOM), ("slam", topics.SLAM_ODOM), ("truth", topics.GROUND_TRUTH_ODOM)):
             sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=1))
         # The keyframe poses come with the path (the same poses): the whole graph, constraints and all, grows to
@@ -170,6 +174,8 @@ class StationBridge:
             )
 
     def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
+        if source == "slam":
+            self.findings.record_pose(view.name, msg)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         if source == "slam":  # the camera's pose: the robot's marker goes where its base is
             pose = robot_pose(pose_matrix(msg.pose.pose), view.mounting)
@@ -199,9 +205,11 @@ class StationBridge:
              p.orientation.w]
             for p in poses
         ]  # fmt: skip
+        self.findings.record_keyframes(view.name, poses)
         self.emit({"type": "keyframes", "agent": view.name, "poses": view.keyframes}, None)
 
     def _on_image(self, view: AgentView, kind: str, payload: bytes) -> None:
+        self.findings.record_frame(view.name, kind, payload)
         if (view.name, kind) not in self.wanted_cameras():
             return
         now = time.monotonic()
@@ -217,7 +225,7 @@ class StationBridge:
         view.image_seq += 1
         self.emit(
             {"type": "image", "agent": view.name, "kind": kind, "mime": mime, "seq": view.image_seq,
-             "data": base64.b64encode(data).decode()},
+             "stamp": str(ns_from_stamp(msg.header.stamp)), "data": base64.b64encode(data).decode()},
             view.name,
         )  # fmt: skip
 
@@ -296,6 +304,8 @@ class StationBridge:
                 out.append({"type": "keyframes", "agent": view.name, "poses": view.keyframes})
             if view.placement is not None or view.mounting is not None:
                 out.append(frame_message(view))
+        if self.findings.findings:
+            out.append(self.findings.message())
         return out
 
     def close(self) -> None:

@@ -6,14 +6,19 @@ server → browser
   ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
   ``pose`` {agent, source, x, y, z, yaw, q: [x, y, z, w]} (the robot's base; ``slam``: in its map frame, from the
   camera's pose); ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
-  ``image`` {agent, kind: rgb|depth, mime, data (base64), seq}; ``stats`` {rows}; ``pong`` {t};
+  ``image`` {agent, kind: rgb|depth, mime, data (base64), seq, stamp (ns, a decimal string)}; ``stats`` {rows};
+  ``pong`` {t};
   ``frame`` {agent, placement: ``T_fleet_map``, mounting: ``T_base_camera`` (4×4 row-major, null until known)}: the
   agent's map, path, keyframes and ``slam`` pose are in its map frame (its camera's at start), placed in the fleet
   frame by ``placement`` (its own frame until then) and drawn upright through ``mounting``;
-  ``estop`` {agent, engaged, ok, message}
+  ``estop`` {agent, engaged, ok, message}; ``findings`` {findings}; ``finding_pick``,
+  ``finding_created``, ``finding_updated``, ``finding_photo``, ``measure_point`` {ok, message, agent, stamp, point
+  (map frame), range} (answers, see :mod:`fleetslam.station.findings`)
 browser → server
   ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
-  ``estop`` {agent, engage}
+  ``estop`` {agent, engage}; ``finding_pick`` {agent, stamp, u, v}; ``finding_create`` {pick, title, severity,
+  note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}; ``measure_pick``
+  {agent, stamp, u, v}
 """
 
 from __future__ import annotations

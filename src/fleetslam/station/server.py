@@ -217,6 +217,39 @@ class StationServer:
             await client.socket.send_str(
                 json.dumps({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
             )
+        elif (kind.startswith("finding_") or kind == "measure_pick") and bridge is not None:
+            await self._on_finding_message(client, kind, message)
+
+    # -- findings (fleetslam.station.findings) ---------------------------------------------------------------
+    async def _on_finding_message(self, client: _Client, kind: str, message: dict[str, Any]) -> None:
+        """A pick, a new finding, a change or a photo asked for: answered to this browser only (the fleet's
+        ``findings`` reach every browser when the findings service publishes them)."""
+        assert self.bridge is not None
+        desk = self.bridge.findings
+        try:
+            if kind == "finding_pick":
+                reply = await asyncio.to_thread(
+                    desk.pick, str(message["agent"]), int(message["stamp"]), float(message["u"]), float(message["v"])
+                )
+            elif kind == "finding_create":
+                reply = await asyncio.to_thread(
+                    desk.create, str(message["pick"]), str(message.get("title", "")),
+                    str(message.get("severity", "")), str(message.get("note", "")),
+                )  # fmt: skip
+            elif kind == "finding_update":
+                reply = await asyncio.to_thread(desk.update, str(message["id"]), message)
+            elif kind == "finding_photo":
+                reply = desk.photo(str(message["id"]))
+            elif kind == "measure_pick":
+                reply = await asyncio.to_thread(
+                    desk.locate, str(message["agent"]), int(message["stamp"]), float(message["u"]), float(message["v"])
+                )
+            else:
+                return
+        except (KeyError, TypeError, ValueError) as err:
+            log.warning("ignoring a malformed %s message: %s", kind, err)
+            return
+        await self._send(client, json.dumps(reply))
 
     async def _teleop_loop(self) -> None:
         next_tick = time.monotonic()

@@ -217,7 +217,8 @@ function onVoxels(msg) {
   const v = view(msg.agent);
   v.size = msg.size;
   if (msg.reset) v.voxels.clear();
-  const key = (p) => p.map((x) => Math.round(x / msg.size)).join(",");
+  // A voxel centre is at (k + 1/2)·size: rounding met two neighbours at the tie (and half the map vanished).
+  const key = (p) => p.map((x) => Math.floor(x / msg.size)).join(",");
   for (const p of msg.remove) v.voxels.delete(key(p));
   for (const p of msg.add) v.voxels.set(key(p), p);
   v.dirty = true;
@@ -478,6 +479,261 @@ for (const [id, out] of [["max-v", "max-v-out"], ["max-w", "max-w-out"]]) {
   document.getElementById(id).oninput = (e) => { document.getElementById(out).textContent = parseFloat(e.target.value).toFixed(2); };
 }
 
+// ---------------------------------------------------------------- findings
+// The operator clicks on the live camera image: the server freezes that frame (photo, depth at the pixel) and
+// answers with a crop; the form's title, severity and note make the finding, recorded by the fleet's findings
+// service. Findings come back from the fleet (every console sees them) with the point in their keyframe's camera
+// frame: their markers are placed from the keyframe's current pose, so they move with it. Text is inserted as text.
+const findings = { list: [], keyframes: new Map(), markers: new Map(), pick: null, selected: null, frame: null };
+state.findings = findings.list;
+const SEVERITY_COLORS = { info: "#8fb8de", low: "#3ddc84", medium: "#ffd166", high: "#ff7a45", critical: "#ff4d4f" };
+// Where an agent's findings are drawn: the group its keyframes are drawn in (its map frame, placed in the fleet frame).
+function findingParent(agent) { return frameOf(agent); }
+function findingPosition(f) {
+  const poses = findings.keyframes.get(f.agent);
+  if (!poses || f.keyframe_id >= poses.length) return null;
+  const [x, y, z, qx, qy, qz, qw] = poses[f.keyframe_id];
+  const p = new THREE.Vector3(f.point[0], f.point[1], f.point[2]).applyQuaternion(new THREE.Quaternion(qx, qy, qz, qw));
+  return [p.x + x, p.y + y, p.z + z];
+}
+function findingMessage(text, error) {
+  const line = document.getElementById("finding-message");
+  line.textContent = text;
+  line.classList.toggle("error", !!error);
+}
+function placeFindings() {
+  for (const f of findings.list) {
+    f.position = findingPosition(f);
+    let marker = findings.markers.get(f.id);
+    if (!marker) {
+      // Drawn over the map (no depth test): a finding inside a wall of voxels stays visible.
+      marker = new THREE.Mesh(new THREE.SphereGeometry(0.13, 16, 12), new THREE.MeshBasicMaterial({ color: 0xffffff, depthTest: false }));
+      marker.renderOrder = 10;
+      marker.userData.findingId = f.id;
+      findingParent(f.agent).add(marker);
+      findings.markers.set(f.id, marker);
+    }
+    marker.material.color.set(f.status === "closed" ? "#6b7785" : SEVERITY_COLORS[f.severity] || "#ffffff");
+    marker.visible = f.position !== null;
+    if (f.position) marker.position.set(f.position[0], f.position[1], f.position[2]);
+  }
+  for (const [id, marker] of findings.markers) {
+    if (findings.list.some((f) => f.id === id)) continue;
+    marker.parent && marker.parent.remove(marker);
+    marker.geometry.dispose(); marker.material.dispose();
+    findings.markers.delete(id);
+  }
+  state.sceneChanged = true;
+}
+// World positions of the markers as drawn (for tests and the curious).
+state.findingMarkers = () => Object.fromEntries([...findings.markers].map(([id, m]) => {
+  const p = new THREE.Vector3(); m.getWorldPosition(p); return [id, m.visible ? [p.x, p.y, p.z] : null];
+}));
+function renderFindings() {
+  const list = document.getElementById("findings-list");
+  list.replaceChildren();
+  findings.list.forEach((f) => {
+    const item = document.createElement("li");
+    const sev = document.createElement("span");
+    sev.className = `sev sev-${f.severity}`;
+    sev.textContent = f.severity;
+    item.append(sev, document.createTextNode(`${f.title} · ${f.agent} · ${f.status}`));
+    item.dataset.id = f.id;
+    item.title = f.id;
+    if (f.status === "closed") item.classList.add("closed");
+    if (f.id === findings.selected) item.classList.add("selected");
+    item.onclick = () => showFinding(f.id);
+    list.appendChild(item);
+  });
+  const open = findings.list.filter((f) => f.status === "open").length;
+  document.getElementById("findings-summary").textContent = findings.list.length ? `${open} open · ${findings.list.length}` : "none";
+  if (findings.selected) showFindingText(findings.list.find((f) => f.id === findings.selected));
+}
+function showFindingText(f) {
+  const detail = document.getElementById("finding-detail");
+  detail.hidden = !f;
+  if (!f) return;
+  const where = f.position ? f.position.map((c) => c.toFixed(2)).join(", ") : "(keyframe not known yet)";
+  const time = findingTime(f.stamp_ns);
+  document.getElementById("finding-text").textContent =
+    `${f.id} · ${f.title}\n${f.severity} · ${f.status} · ${f.agent}, keyframe ${f.keyframe_id} · ${time}\n` +
+    `at (${where}) m in ${f.agent}'s map\n${f.note}`;
+  document.getElementById("finding-toggle").textContent = f.status === "open" ? "close finding" : "reopen";
+}
+// A stamp before 2001 is a simulated clock's (seconds since the simulation started), not a date.
+function findingTime(stampNs) {
+  return stampNs < 1e18 ? `t = ${(stampNs / 1e9).toFixed(1)} s (simulated clock)` : new Date(stampNs / 1e6).toLocaleString();
+}
+function flyTo(position) {
+  const target = new THREE.Vector3(position[0], position[1], position[2]);
+  const offset = camera3d.position.clone().sub(controls.target).setLength(3.0);
+  controls.target.copy(target);
+  camera3d.position.copy(target).add(offset);
+  controls.update();
+  state.sceneChanged = true;
+}
+function showFinding(id) {
+  findings.selected = id;
+  const f = findings.list.find((x) => x.id === id);
+  renderFindings();
+  if (!f) return;
+  document.getElementById("finding-photo").removeAttribute("src");
+  document.getElementById("finding-photo-crop").removeAttribute("src");
+  if (f.has_photo) send({ type: "finding_photo", id });
+  if (f.position) flyTo(f.position);
+}
+function onFindingPhoto(msg) {
+  if (msg.id !== findings.selected) return;
+  if (msg.photo) document.getElementById("finding-photo").src = `data:image/jpeg;base64,${msg.photo}`;
+  if (msg.crop) document.getElementById("finding-photo-crop").src = `data:image/jpeg;base64,${msg.crop}`;
+}
+// The pixel (centres at integers) of the camera image under a click, or null outside the picture (object-fit: contain).
+function imagePixel(img, event) {
+  const rect = img.getBoundingClientRect();
+  if (!img.naturalWidth || !img.naturalHeight) return null;
+  const scale = Math.min(rect.width / img.naturalWidth, rect.height / img.naturalHeight);
+  const left = rect.left + (rect.width - img.naturalWidth * scale) / 2, top = rect.top + (rect.height - img.naturalHeight * scale) / 2;
+  const u = (event.clientX - left) / scale - 0.5, v = (event.clientY - top) / scale - 0.5;
+  if (u < -0.5 || v < -0.5 || u > img.naturalWidth - 0.5 || v > img.naturalHeight - 0.5) return null;
+  return { u, v };
+}
+document.getElementById("camera").addEventListener("click", (event) => {
+  const frame = findings.frame;
+  const pixel = imagePixel(event.currentTarget, event);
+  if (!frame || !pixel) return;
+  if (measure.on) {
+    send({ type: "measure_pick", agent: frame.agent, stamp: frame.stamp, u: pixel.u, v: pixel.v });
+    return;
+  }
+  findingMessage(`picking (${pixel.u.toFixed(0)}, ${pixel.v.toFixed(0)})…`);
+  state.lastFindingPick = { agent: frame.agent, stamp: frame.stamp, u: pixel.u, v: pixel.v };
+  send({ type: "finding_pick", ...state.lastFindingPick });
+});
+function onFindingPick(msg) {
+  if (!msg.ok) { findingMessage(msg.message, true); return; }
+  findings.pick = msg.pick;
+  document.getElementById("finding-crop").src = `data:image/jpeg;base64,${msg.crop}`;
+  document.getElementById("finding-point").textContent =
+    `${msg.agent}: ${msg.point.map((c) => c.toFixed(2)).join(", ")} m (camera frame), ${msg.point[2].toFixed(2)} m away`;
+  document.getElementById("finding-form").hidden = false;
+  findingMessage("");
+  document.getElementById("finding-title").focus();
+}
+document.getElementById("finding-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  if (!findings.pick) return;
+  send({
+    type: "finding_create", pick: findings.pick, title: document.getElementById("finding-title").value,
+    severity: document.getElementById("finding-severity").value, note: document.getElementById("finding-note").value,
+  });
+  findingMessage("recording…");
+});
+document.getElementById("finding-cancel").onclick = () => { findings.pick = null; document.getElementById("finding-form").hidden = true; findingMessage(""); };
+// Typing in the form must not drive the robot (W/A/S/D, Space are teleoperation keys).
+for (const id of ["finding-title", "finding-note"]) {
+  document.getElementById(id).addEventListener("keydown", (e) => e.stopPropagation());
+  document.getElementById(id).addEventListener("keyup", (e) => e.stopPropagation());
+}
+function onFindingCreated(msg) {
+  if (!msg.ok) { findingMessage(msg.message, true); return; }
+  findings.pick = null;
+  document.getElementById("finding-form").hidden = true;
+  document.getElementById("finding-title").value = "";
+  document.getElementById("finding-note").value = "";
+  findingMessage(msg.message);
+}
+document.getElementById("finding-toggle").onclick = () => {
+  const f = findings.list.find((x) => x.id === findings.selected);
+  if (f) send({ type: "finding_update", id: f.id, status: f.status === "open" ? "closed" : "open" });
+};
+document.getElementById("finding-fly").onclick = () => {
+  const f = findings.list.find((x) => x.id === findings.selected);
+  if (f && f.position) flyTo(f.position);
+};
+// Every server message passes here first; true: it was a findings message and is handled.
+function findingsOnMessage(msg) {
+  switch (msg.type) {
+    case "image": if (msg.agent === state.selected) findings.frame = { agent: msg.agent, stamp: msg.stamp }; return false;
+    case "keyframes": findings.keyframes.set(msg.agent, msg.poses); placeFindings(); renderFindings(); return false;
+    case "findings":
+      findings.list.splice(0, findings.list.length, ...msg.findings);
+      placeFindings(); renderFindings();
+      return true;
+    case "finding_pick": onFindingPick(msg); return true;
+    case "finding_created": onFindingCreated(msg); return true;
+    case "finding_updated": findingMessage(msg.message, !msg.ok); return true;
+    case "finding_photo": onFindingPhoto(msg); return true;
+    case "measure_point": onMeasurePoint(msg); return true;
+  }
+  return false;
+}
+
+// ---------------------------------------------------------------- measure
+// With "measure" on, two points picked on the camera image (the depth there, placed by SLAM's pose of that frame) or
+// in the 3D view (the nearest voxel under the pointer) give their distance, drawn as a line.
+const measure = { on: false, points: [], objects: [], distance: null };
+state.measure = measure;
+function measureText() {
+  const box = document.getElementById("measure-result");
+  box.hidden = !measure.on;
+  if (measure.distance !== null) box.textContent = `distance ${measure.distance.toFixed(3)} m`;
+  else box.textContent = measure.points.length ? "measure: pick the second point" : "measure: pick two points on the camera image or the map";
+}
+function resetMeasure() {
+  for (const o of measure.objects) { scene.remove(o); o.geometry.dispose(); o.material.dispose(); }
+  measure.objects = []; measure.points = []; measure.distance = null;
+  state.sceneChanged = true;
+  measureText();
+}
+function addMeasurePoint(point) {
+  if (measure.points.length >= 2) resetMeasure();
+  measure.points.push(point);
+  const world = new THREE.Vector3(...point.world);
+  const dot = new THREE.Mesh(new THREE.SphereGeometry(0.05, 12, 8), new THREE.MeshBasicMaterial({ color: 0xffe066 }));
+  dot.position.copy(world);
+  scene.add(dot);
+  measure.objects.push(dot);
+  if (measure.points.length === 2) {
+    const [a, b] = measure.points.map((p) => new THREE.Vector3(...p.world));
+    const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints([a, b]), new THREE.LineBasicMaterial({ color: 0xffe066 }));
+    scene.add(line);
+    measure.objects.push(line);
+    measure.distance = a.distanceTo(b);
+  }
+  state.sceneChanged = true;
+  measureText();
+}
+document.getElementById("measure-toggle").onchange = (e) => { measure.on = e.target.checked; resetMeasure(); };
+// A point of the image arrives in the agent's map frame: drawn where that agent's findings are.
+function onMeasurePoint(msg) {
+  if (!msg.ok) { findingMessage(msg.message, true); return; }
+  findingMessage("");
+  const world = findingParent(msg.agent).localToWorld(new THREE.Vector3(...msg.point));
+  addMeasurePoint({ source: "image", agent: msg.agent, stamp: msg.stamp, world: [world.x, world.y, world.z] });
+}
+// Where a point of the scene is on the screen (client pixels; for tests and the curious).
+state.screenOf = (x, y, z) => {
+  const p = new THREE.Vector3(x, y, z).project(camera3d), rect = renderer.domElement.getBoundingClientRect();
+  return [rect.left + ((p.x + 1) / 2) * rect.width, rect.top + ((1 - p.y) / 2) * rect.height];
+};
+// The 3D view: a click (not a drag of the view) picks the nearest voxel under the pointer.
+const measureRay = new THREE.Raycaster();
+let measureDown = null;
+renderer.domElement.addEventListener("pointerdown", (e) => { measureDown = [e.clientX, e.clientY]; });
+renderer.domElement.addEventListener("pointerup", (e) => {
+  if (!measure.on || !measureDown || Math.hypot(e.clientX - measureDown[0], e.clientY - measureDown[1]) > 4) return;
+  const rect = renderer.domElement.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((e.clientX - rect.left) / rect.width) * 2 - 1, -((e.clientY - rect.top) / rect.height) * 2 + 1);
+  measureRay.setFromCamera(ndc, camera3d);
+  const clouds = [...agentViews.values()].map((v) => v.cloud).filter(Boolean);
+  measureRay.params.Points.threshold = 0.5 * Math.max(...[...agentViews.values()].map((v) => v.size), 0.05);
+  const hit = measureRay.intersectObjects(clouds, false)[0];
+  if (!hit) { findingMessage("measure: no map under the pointer", true); return; }
+  const voxel = new THREE.Vector3().fromBufferAttribute(hit.object.geometry.attributes.position, hit.index).applyMatrix4(hit.object.matrixWorld);
+  findingMessage("");
+  addMeasurePoint({ source: "map", world: [voxel.x, voxel.y, voxel.z] });
+});
+
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
 function connect() {
@@ -489,6 +745,7 @@ function connect() {
   state.socket = socket;
   socket.onmessage = (event) => {
     const msg = JSON.parse(event.data);
+    if (findingsOnMessage(msg)) return;
     switch (msg.type) {
       case "hello":
         state.limits = msg.limits;
