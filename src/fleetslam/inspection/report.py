@@ -151,14 +151,43 @@ def _occupied(path: Path) -> NDArray[np.float64]:
     return np.asarray(centres, dtype=np.float64)
 
 
+def levelling_rotation(
+    camera_rotations: NDArray[np.float64], positions: NDArray[np.float64] | None = None
+) -> NDArray[np.float64]:
+    """``R_top_fleet``: the fleet frame turned so that its z is up and its x the cameras' mean heading, for a top-down
+    view. The fleet frame is a camera's frame at start (z ahead, y down) and need not be level. "Up" is the normal of
+    the plane the cameras moved in when they did (``positions`` spread over a plane: ground robots, whatever their
+    cameras' pitch), else the mean of the cameras' −y axes (optical frames: y points down in the image; exact for
+    level cameras, a fair guess for hand-held ones). ``camera_rotations``: (N, 3, 3) camera orientations in the fleet
+    frame; with none, the optical convention alone (up = −y, ahead = z)."""
+    rotations = np.asarray(camera_rotations, dtype=np.float64).reshape(-1, 3, 3)
+    up = -rotations[:, :, 1].sum(axis=0) if len(rotations) else np.array([0.0, -1.0, 0.0])
+    ahead = rotations[:, :, 2].sum(axis=0) if len(rotations) else np.array([0.0, 0.0, 1.0])
+    if np.linalg.norm(up) < 1e-9:
+        up = np.array([0.0, -1.0, 0.0])
+    up = up / np.linalg.norm(up)
+    points = np.asarray(positions, dtype=np.float64).reshape(-1, 3) if positions is not None else np.zeros((0, 3))
+    if len(points) >= 10:
+        _, spread, axes = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+        spread = spread / np.sqrt(len(points))
+        if spread[1] > 0.5 and spread[2] < 0.05 * spread[1]:  # a plane metres wide, centimetres thick
+            normal = axes[2]
+            up = normal if float(normal @ up) >= 0.0 else -normal
+    ahead = ahead - up * float(ahead @ up)
+    if np.linalg.norm(ahead) < 1e-9:  # looking straight up or down: any horizontal axis will do
+        ahead = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    ahead = ahead / np.linalg.norm(ahead)
+    return np.stack([ahead, np.cross(up, ahead), up])
+
+
 def _overview(
     run: Path,
     numbered: Sequence[tuple[int, Finding, NDArray[np.float64] | None]],
     placements: Mapping[str, NDArray[np.float64]],
     slam: Mapping[str, Any],
 ) -> bytes:
-    """PNG: the fleet map's occupied cells (0.1–1.5 m high), each placed robot's path and the findings, numbered,
-    top-down in the fleet frame."""
+    """PNG: the fleet map's occupied cells (0.1–1.5 m above the floor), each placed robot's path and the findings,
+    numbered, top-down in the fleet frame levelled by :func:`levelling_rotation`."""
     try:
         import matplotlib
 
@@ -167,25 +196,34 @@ def _overview(
     except ImportError:
         log.warning("matplotlib is not installed: no map overview (pip install 'fleetslam[eval]')")
         return b""
+    placed = {robot: t for robot, t in slam.items() if robot in placements and len(t.poses)}
+    rotations = [placements[robot][:3, :3] @ t.poses[:, :3, :3] for robot, t in placed.items()]
+    positions = [t.positions @ placements[robot][:3, :3].T + placements[robot][:3, 3] for robot, t in placed.items()]
+    level = levelling_rotation(
+        np.concatenate(rotations) if rotations else np.zeros((0, 3, 3)),
+        np.concatenate(positions) if positions else None,
+    )
     fleet_map = run / "maps" / "fleet.bt"
     drawn = False
     fig, ax = plt.subplots(figsize=(8, 6), dpi=120)
     if fleet_map.is_file():
-        centres = _occupied(fleet_map)
-        band = centres[(centres[:, 2] > 0.1) & (centres[:, 2] < 1.5)] if len(centres) else centres
-        if len(band):
-            ax.scatter(band[:, 0], band[:, 1], s=0.4, c="0.55", label="fleet map (occupied, 0.1–1.5 m)")
-            drawn = True
-    for robot, trajectory in slam.items():
-        if robot not in placements or not len(trajectory.poses):
-            continue
-        xy = trajectory.positions @ placements[robot][:3, :3].T + placements[robot][:3, 3]
+        centres = _occupied(fleet_map) @ level.T
+        if len(centres):  # the floor is the lowest occupied layer (a few stray cells below it aside)
+            floor = float(np.percentile(centres[:, 2], 2.0))
+            band = centres[(centres[:, 2] > floor + 0.1) & (centres[:, 2] < floor + 1.5)]
+            if len(band):
+                ax.scatter(band[:, 0], band[:, 1], s=0.4, c="0.55",
+                           label="fleet map (occupied, 0.1–1.5 m above the floor)")  # fmt: skip
+                drawn = True
+    for robot, trajectory in placed.items():
+        xy = (trajectory.positions @ placements[robot][:3, :3].T + placements[robot][:3, 3]) @ level.T
         ax.plot(xy[:, 0], xy[:, 1], linewidth=1.2, label=f"{robot} path (SLAM)")
         drawn = True
     colours = {"info": "#4a90c2", "low": "#2e9e5b", "medium": "#d9a400", "high": "#e8612c", "critical": "#d0021b"}
-    for number, finding, where in numbered:
-        if where is None:
+    for number, finding, fleet_point in numbered:
+        if fleet_point is None:
             continue
+        where = level @ fleet_point
         closed = finding.status == "closed"
         ax.scatter([where[0]], [where[1]], s=140, c="white" if closed else colours.get(finding.severity, "k"),
                    edgecolors="black", linewidths=1.0, zorder=5)  # fmt: skip
@@ -196,8 +234,8 @@ def _overview(
         plt.close(fig)
         return b""
     ax.set_aspect("equal")
-    ax.set_xlabel("x (m, fleet frame)")
-    ax.set_ylabel("y (m)")
+    ax.set_xlabel("m (fleet frame, levelled: x along the cameras' mean heading)")
+    ax.set_ylabel("m")
     ax.grid(alpha=0.25)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
