@@ -35,7 +35,9 @@ def _update(poses: dict[int, np.ndarray], closures: list[ClosureReport], epoch: 
     return GraphUpdate(1, True, dict(poses), {i: float(i) for i in poses}, closures, epoch)
 
 
-def _closures(c3po: dict[int, np.ndarray], r2d2: dict[int, np.ndarray], ids: list[int], epoch: int) -> list[ClosureReport]:
+def _closures(
+    c3po: dict[int, np.ndarray], r2d2: dict[int, np.ndarray], ids: list[int], epoch: int
+) -> list[ClosureReport]:
     """r2d2's keyframe j sees c3po's keyframe j (exact relative pose), as r2d2 reports it."""
     return [ClosureReport("r2d2", j, "c3po", j, invert(r2d2[j]) @ c3po[j], epoch) for j in ids]
 

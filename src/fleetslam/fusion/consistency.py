@@ -107,7 +107,7 @@ def fit_frames(source: Sequence[Pose], target: Sequence[Pose]) -> Pose:
     """``T`` with ``target[k] ≈ T · source[k]`` for every pair of poses, in the least-squares sense over each pose's
     position and axes (one pair is enough)."""
     if len(source) != len(target) or not len(source):
-        raise ValueError(f"fit_frames needs two equally long, non-empty lists of poses, got {len(source)}, {len(target)}")
+        raise ValueError(f"fit_frames needs two equally long, non-empty lists of poses: {len(source)}, {len(target)}")
     return rigid_fit(
         np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in source]),
         np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in target]),

@@ -33,6 +33,7 @@ Pure: no middleware. Poses are 4×4 ``T_map_camera`` (own map frame) or ``T_flee
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 from collections.abc import Iterable
@@ -210,6 +211,10 @@ class FleetGraph:
             return self.reference
         return min(self.agents) if self.agents else None
 
+    def unsynced(self) -> list[str]:
+        """Agents whose graph has a gap (their full graph is needed)."""
+        return sorted(a for a, state in self.agents.items() if not state.mirror.synced)
+
     def restarts(self, agent: str) -> int:
         """Times ``agent`` was seen to restart."""
         state = self.agents.get(agent)
@@ -308,7 +313,7 @@ class FleetGraph:
             else:
                 graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
             index = {i: k for k, i in enumerate(ids)}
-            for i, j in zip(chain, chain[1:], strict=False):
+            for i, j in itertools.pairwise(chain):
                 steps = index[j] - index[i]
                 if steps not in odometry_noise:  # the steps' errors add up: sigma grows with their square root
                     odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(_sigmas(self.odometry_sigma) * np.sqrt(steps))
@@ -374,7 +379,7 @@ def _fill_between(own: dict[int, Pose], chain: list[int], solved: dict[int, Pose
     corrected = dict(solved)
     ids = sorted(own)
     index = {i: k for k, i in enumerate(ids)}
-    for p, q in zip(chain, chain[1:], strict=False):
+    for p, q in itertools.pairwise(chain):
         if index[q] - index[p] < 2:
             continue
         before, after = solved[p] @ invert(own[p]), solved[q] @ invert(own[q])
