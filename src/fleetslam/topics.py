@@ -26,6 +26,7 @@ __all__ = [
     "CMD_VEL_STAMPED",
     "DEPTH_CAMERA_INFO",
     "DEPTH_IMAGE",
+    "FLEET_BACKEND_DIAGNOSTICS",
     "FLEET_MAP_OCCUPIED",
     "FLEET_MAP_OCTOMAP",
     "FLEET_PATH",
@@ -164,6 +165,11 @@ FLEET_MAP_OCTOMAP = Topic("/fleet/map/octomap", "octomap_msgs/msg/Octomap", 1, "
 FLEET_PLACEMENTS = Topic("/fleet/placements", "tf2_msgs/msg/TFMessage", 1, "transient_local",
                          content="fleet → <agent>/map of every agent the joint optimisation placed, after each solve",
                          flow="fleet back-end → fleet map, station")  # fmt: skip
+FLEET_BACKEND_DIAGNOSTICS = Topic(
+    "/fleet/backend/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
+    content="agents placed, closures kept/rejected, variables, solve time; after each solve",
+    flow="fleet back-end → operators, benchmarks",
+)  # fmt: skip
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", 1, content="sim time, when simulated", flow="sim → every node")
 
 AGENT_TOPICS: tuple[Topic, ...] = (
@@ -172,7 +178,8 @@ AGENT_TOPICS: tuple[Topic, ...] = (
     KEYFRAME_SUMMARIES, GRAPH, GRAPH_UPDATES, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
 )  # fmt: skip
 """The topics of one agent, in its namespace."""
-FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, FLEET_PLACEMENTS, CLOCK)
+FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, FLEET_PLACEMENTS,
+                                   FLEET_BACKEND_DIAGNOSTICS, CLOCK)  # fmt: skip
 """The fleet-level topics (absolute names)."""
 
 

@@ -6,9 +6,9 @@ back-end that started late) asks the agent for its whole graph (``/<agent>/graph
 thread, one request per agent at a time), as the agents do with each other. A worker thread drains what came in
 and re-optimises when something changed, at most ``rate`` times a second and within ``max_load`` of one core; after
 each solve it publishes ``/fleet/placements`` (tf2_msgs/TFMessage, latched: ``fleet → <agent>/map`` of every agent
-placed; the fleet map node prefers these to the agents' own ``slam/fleet_transform``) and, to whoever subscribes,
-``/<agent>/fleet_path`` (nav_msgs/Path of the agent's corrected keyframes in the fleet frame, each stamped with
-its keyframe's stamp).
+placed; the fleet map node prefers these to the agents' own ``slam/fleet_transform``), ``/fleet/backend/diagnostics``
+(agents placed, closures kept and rejected, variables, solve time) and, to whoever subscribes, ``/<agent>/fleet_path``
+(nav_msgs/Path of the agent's corrected keyframes in the fleet frame, each stamped with its keyframe's stamp).
 
 Nothing flows back to the agents' SLAM: an agent keeps mapping in its own frame whatever happens here (cut off,
 back-end restarted), and the back-end catches up from the agents' graphs when they come back.
@@ -114,6 +114,8 @@ class FleetGraphNode:
         self._path_published: dict[str, int] = {}
         placements = topics.FLEET_PLACEMENTS
         self.placements_pub = node.create_publisher(placements.type, placements.name, placements.qos())
+        diagnostics = topics.FLEET_BACKEND_DIAGNOSTICS
+        self.diagnostics_pub = node.create_publisher(diagnostics.type, diagnostics.name, diagnostics.qos())
         for agent in c.agents:
             self._subscribe(agent)
         node.create_timer(1.0, self._discover)
@@ -251,7 +253,25 @@ class FleetGraphNode:
                      len(solution.placements), ", ".join(sorted(solution.placements)), len(solution.kept),
                      len(solution.rejected), solution.keyframes, solution.seconds)  # fmt: skip
         self.publish(solution)
+        self.publish_diagnostics(solution)
         return solution
+
+    def publish_diagnostics(self, solution: FleetSolution) -> None:
+        """``/fleet/backend/diagnostics``: one status named ``fleet_backend`` with this solve's figures."""
+        values = {
+            "agents_known": len(self.graph.agents), "agents_placed": len(solution.placements),
+            "closures_kept": len(solution.kept), "closures_rejected": len(solution.rejected),
+            "variables": solution.keyframes, "robust": solution.robust, "solve_ms": round(solution.seconds * 1e3, 1),
+            "solves": self.solves, **self.counts,
+        }  # fmt: skip
+        status_type = get_type("diagnostic_msgs/msg/DiagnosticStatus")
+        status = status_type(
+            level=status_type.OK, name="fleet_backend", hardware_id=self.config.frame_id,
+            message=f"{len(solution.placements)} of {len(self.graph.agents)} agents placed",
+            values=[get_type("diagnostic_msgs/msg/KeyValue")(key=k, value=str(v)) for k, v in values.items()],
+        )  # fmt: skip
+        self.diagnostics_pub.publish(get_type("diagnostic_msgs/msg/DiagnosticArray")(
+            header=header(self.config.frame_id, self.node.now_ns()), status=[status]))  # fmt: skip
 
     def publish(self, solution: FleetSolution) -> None:
         """``/fleet/placements`` (always: latched), each agent's ``fleet_path`` while someone subscribes."""
