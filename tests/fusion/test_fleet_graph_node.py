@@ -12,7 +12,7 @@ from fleetslam.fusion.fleet_graph_node import FleetGraphConfig, FleetGraphNode
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_message
 from fleetslam.geometry import invert, pose_from_planar
 from fleetslam.middleware import Context, Node, QoSProfile
-from fleetslam.msg.conversions import pose_msg, transform_matrix
+from fleetslam.msg.conversions import pose_matrix, pose_msg, transform_matrix
 from fleetslam.msg.typesys import get_type, ns_from_stamp
 
 from ..support import wait_until
@@ -76,6 +76,9 @@ def test_the_back_end_places_two_agents_from_their_graph_updates(make_context: C
                                topics.FLEET_PLACEMENTS.qos(depth=5))  # fmt: skip
     viewer.create_subscription(topics.FLEET_PATH.type, topics.FLEET_PATH.of("r2d2"), paths.append,
                                topics.FLEET_PATH.qos(depth=5))  # fmt: skip
+    diagnostics: list[Any] = []
+    viewer.create_subscription(topics.FLEET_BACKEND_DIAGNOSTICS.type, topics.FLEET_BACKEND_DIAGNOSTICS.name,
+                               diagnostics.append, topics.FLEET_BACKEND_DIAGNOSTICS.qos(depth=20))  # fmt: skip
     assert wait_until(lambda: backend._subscribed == {"c3po", "r2d2"}, 10.0)  # found in the graph
     # r2d2 recognises c3po at four places (exact closures), a delta the back-end receives after a gap.
     closures = [_inter_agent("r2d2", j, "c3po", j, invert(r2d2_truth[j]) @ c3po_truth[j], c3po.writer.epoch)
@@ -103,9 +106,11 @@ def test_the_back_end_places_two_agents_from_their_graph_updates(make_context: C
     path = paths[-1]
     assert path.header.frame_id == "fleet"
     assert [ns_from_stamp(p.header.stamp) for p in path.poses] == [i * 1_000_000_000 for i in range(20)]
-    from fleetslam.msg.conversions import pose_matrix
-
     np.testing.assert_allclose(pose_matrix(path.poses[15].pose), r2d2_truth[15], atol=1e-3)
+    # What the solve did, for operators and benchmarks.
+    assert wait_until(lambda: bool(diagnostics), 10.0)
+    values = {kv.key: kv.value for kv in diagnostics[-1].status[0].values}
+    assert values["agents_placed"] == "2" and values["closures_kept"] == "4" and values["closures_rejected"] == "0"
 
 
 def test_the_fleet_map_prefers_the_back_end_placement(make_context: Callable[..., Context]) -> None:
