@@ -158,3 +158,19 @@ def test_closures_reported_by_both_agents_count_once_and_a_gap_asks_for_the_full
     fleet.apply("r2d2", _update(_drifted(r2d2, R2D2_MAP, 0.0), _closures(c3po, r2d2, ENDS, 11), 22))
     assert len(fleet.closures()) == len(ENDS)
     assert not fleet.apply("c3po", GraphUpdate(3, False, {}, {}, [], 11))  # sequence 2 is missing
+
+
+def test_the_fleet_frame_follows_the_first_agent_as_agents_appear() -> None:
+    c3po, r2d2 = _truth()
+    fleet = FleetGraph()
+    own_r2d2 = _drifted(r2d2, R2D2_MAP, 0.0)
+    fleet.apply("r2d2", _update(own_r2d2, [], epoch=22))  # heard first: the fleet frame is r2d2's map frame for now
+    solution = fleet.solve()
+    assert solution is not None and set(solution.placements) == {"r2d2"}
+    np.testing.assert_allclose(solution.placements["r2d2"].T_fleet_map, np.eye(4), atol=1e-6)
+    fleet.apply("c3po", _update(c3po, [], epoch=11))  # c3po comes first alphabetically: its frame is the fleet's
+    fleet.apply("r2d2", GraphUpdate(2, False, {}, {}, _closures(c3po, r2d2, ENDS, 11), 22))
+    solution = fleet.solve()
+    assert solution is not None and set(solution.placements) == {"c3po", "r2d2"}
+    np.testing.assert_allclose(solution.placements["c3po"].T_fleet_map, np.eye(4), atol=1e-3)
+    np.testing.assert_allclose(solution.placements["r2d2"].T_fleet_map, R2D2_MAP, atol=1e-3)

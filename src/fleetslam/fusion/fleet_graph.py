@@ -170,6 +170,7 @@ class FleetGraph:
     _judged: frozenset[ClosureKey] = frozenset()
     """The closures the last GNC judged; ``_kept`` those it kept."""
     _kept: frozenset[ClosureKey] = frozenset()
+    _solved_reference: str | None = None
 
     # -- input ---------------------------------------------------------------------------------------------------
     def apply(self, agent: str, update: GraphUpdate[ClosureReport]) -> bool:
@@ -281,6 +282,12 @@ class FleetGraph:
         self.changed = False
         started = time.perf_counter()
         g = _gtsam()
+        reference = self.reference_agent()
+        if reference != self._solved_reference:
+            # The fleet frame is another agent's map frame now (an alphabetically earlier agent appeared, or the
+            # reference restarted): the previous solution is in the old frame and must not warm-start the new one.
+            self._solution, self._judged, self._kept = {}, frozenset(), frozenset()
+            self._solved_reference = reference
         closures = self.closures()
         self._update_pairs(closures.values())
         connected = self.connected()
@@ -288,7 +295,6 @@ class FleetGraph:
         if not placed:
             self._solution = {}
             return FleetSolution({}, [], [], False, 0, time.perf_counter() - started)
-        reference = self.reference_agent()
         between = [c for c in closures.values() if c.a in placed and c.b in placed and c.a != c.b]
         endpoints: dict[str, set[int]] = {}
         for c in between:
