@@ -25,10 +25,11 @@ What is real and what is replicated:
 Figures: lag from a keyframe's update being published to the keyframe appearing in that agent's published
 ``fleet_path`` (median, p95, max; target < 1 s; counted for keyframes published once their agent was placed:
 before, they wait for closures, not for the back-end), keyframes per second in, the back-end process's CPU (% of
-one core) and peak RSS, its solve time per cycle (from ``/fleet/backend/diagnostics``: median, p95, max, GNC
-share), agents placed, closures kept and rejected. The machine is shared (2 cores, other work running), as the JSON says
-(``load_average``); the replayer and the lag measurement run in this process, niced like the rest. Prints one JSON
-line; progress on stderr; ``fleet_backend.png``: lag and solve time over the run.
+one core) and peak RSS, its solve time per cycle (from ``/fleet/backend/diagnostics``: wall and CPU time,
+median, p95, max; how many ran GNC), agents placed, closures kept and rejected. The machine is shared (2 cores,
+other work running), as the JSON says (``load_average``): wall times include waiting for a core, CPU times do not.
+The replayer and the lag measurement run in this process, niced like the back-end. Prints one JSON line;
+progress on stderr; ``fleet_backend.png``: lag and solve time over the run.
 
 Usage: python benchmarks/fleet_backend.py [--copies 16] [--duration 130] [--out results/benchmarks]
 """
@@ -361,6 +362,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 _, err = backend.communicate()
     lag_values = np.array([lag for _, lag in lags]) if lags else np.array([np.nan])
     solve_ms = np.array([float(s["solve_ms"]) for s in solves]) if solves else np.array([np.nan])
+    solve_cpu_ms = np.array([float(s["solve_cpu_ms"]) for s in solves]) if solves else np.array([np.nan])
     robust = [s.get("robust") == "True" for s in solves]
     last = solves[-1] if solves else {}
     duration = end_of_input - t0
@@ -378,6 +380,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "backend_rss_mb_peak": round(rss_peak, 1),
         "solves": len(solves), "solve_ms_median": round(float(np.median(solve_ms)), 1),
         "solve_ms_p95": round(float(np.percentile(solve_ms, 95)), 1), "solve_ms_max": round(float(np.max(solve_ms)), 1),
+        "solve_cpu_ms_median": round(float(np.median(solve_cpu_ms)), 1),
+        "solve_cpu_ms_p95": round(float(np.percentile(solve_cpu_ms, 95)), 1),
+        "solve_cpu_ms_max": round(float(np.max(solve_cpu_ms)), 1),
         "gnc_solves": int(sum(robust)),
         "agents_placed": int(last.get("agents_placed", 0)), "variables": int(last.get("variables", 0)),
         "closures_kept": int(last.get("closures_kept", 0)), "closures_rejected": int(last.get("closures_rejected", 0)),
@@ -418,7 +423,8 @@ def plot(lags: list[tuple[float, float]], solves: list[dict[str, str]], path: Pa
     top.legend(loc="upper left")
     if solves:
         t = [float(s["t"]) for s in solves]
-        bottom.plot(t, [float(s["solve_ms"]) for s in solves], ".-", ms=3, lw=0.5, label="solve")
+        bottom.plot(t, [float(s["solve_ms"]) for s in solves], ".-", ms=3, lw=0.5, label="solve (wall)")
+        bottom.plot(t, [float(s["solve_cpu_ms"]) for s in solves], ".", ms=3, color="tab:green", label="solve (CPU)")
         gnc = [(float(s["t"]), float(s["solve_ms"])) for s in solves if s.get("robust") == "True"]
         if gnc:
             bottom.plot(*zip(*gnc, strict=True), "x", color="tab:red", ms=4, label="with GNC (closures changed)")

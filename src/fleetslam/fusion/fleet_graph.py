@@ -38,15 +38,17 @@ import logging
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from fleetslam._imports import require
 from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure, fit_frames
 from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
-from fleetslam.geometry import invert, so3_exp, so3_log
+from fleetslam.geometry import invert
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +76,11 @@ class ClosureReport:
     """``T_fromcamera_tocamera``."""
     to_epoch: int
     """The run of ``to_agent`` that ``to_id`` belongs to."""
+
+    @cached_property
+    def oriented(self) -> FleetClosure:
+        """The closure as :class:`FleetClosure` (computed once: the fleet graph looks at every closure every solve)."""
+        return FleetClosure.of(self)
 
 
 @dataclass(frozen=True)
@@ -126,6 +133,8 @@ class FleetSolution:
     """Variables of the solve."""
     seconds: float
     """Wall time of the solve (building the graph included)."""
+    cpu_seconds: float = 0.0
+    """CPU time of the solving thread (what the solve costs, whatever else the machine runs)."""
 
 
 @dataclass
@@ -232,15 +241,19 @@ class FleetGraph:
                     continue
                 if report.from_id not in self.agents[agent].mirror.poses or report.to_id not in target.mirror.poses:
                     continue
-                closure = FleetClosure.of(report)
+                closure = report.oriented
                 found.setdefault(closure.key, closure)
         return found
 
     def _update_pairs(self, closures: Iterable[FleetClosure]) -> None:
+        """New closures into their pair's consistency test, while the pair is not placed in one solution (then GNC
+        judges its closures, and the test's cost, growing with the closures it holds, is saved)."""
         for closure in closures:
             if closure.key in self._in_pairs:
                 continue
             self._in_pairs.add(closure.key)
+            if closure.a in self._solution and closure.b in self._solution:
+                continue
             pair = (closure.a, closure.b)
             closure_set = self._pairs.get(pair)
             if closure_set is None:
@@ -280,7 +293,7 @@ class FleetGraph:
         if not self.changed:
             return None
         self.changed = False
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), time.thread_time()
         g = _gtsam()
         reference = self.reference_agent()
         if reference != self._solved_reference:
@@ -294,7 +307,7 @@ class FleetGraph:
         placed = sorted(a for a in connected if self.agents[a].mirror.poses)
         if not placed:
             self._solution = {}
-            return FleetSolution({}, [], [], False, 0, time.perf_counter() - started)
+            return FleetSolution({}, [], [], False, 0, time.perf_counter() - started, time.thread_time() - started_cpu)
         between = [c for c in closures.values() if c.a in placed and c.b in placed and c.a != c.b]
         endpoints: dict[str, set[int]] = {}
         for c in between:
@@ -319,12 +332,12 @@ class FleetGraph:
             else:
                 graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
             index = {i: k for k, i in enumerate(ids)}
-            for i, j in itertools.pairwise(chain):
+            for (i, j), relative in zip(itertools.pairwise(chain), _steps([own[i] for i in chain]), strict=True):
                 steps = index[j] - index[i]
                 if steps not in odometry_noise:  # the steps' errors add up: sigma grows with their square root
                     odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(_sigmas(self.odometry_sigma) * np.sqrt(steps))
-                graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j),
-                                               g.Pose3(invert(own[i]) @ own[j]), odometry_noise[steps]))  # fmt: skip
+                graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j), g.Pose3(relative),
+                                               odometry_noise[steps]))  # fmt: skip
         known = int(graph.size())
         judged = frozenset(c.key for c in between)
         robust = judged != self._judged
@@ -362,7 +375,7 @@ class FleetGraph:
         kept = [c for c in between if c.key in self._kept]
         rejected = [c for c in between if c.key not in self._kept]
         return FleetSolution(solution, kept, rejected, robust and bool(used), int(values.size()),
-                             time.perf_counter() - started)  # fmt: skip
+                             time.perf_counter() - started, time.thread_time() - started_cpu)  # fmt: skip
 
     @property
     def solution(self) -> dict[str, AgentPlacement]:
@@ -382,21 +395,34 @@ class FleetGraph:
 def _fill_between(own: dict[int, Pose], chain: list[int], solved: dict[int, Pose]) -> dict[int, Pose]:
     """Every keyframe's corrected pose: the solved ones as solved; one between two solved keyframes moves by their
     corrections (``T_corrected · T_own⁻¹``) interpolated by its place between them (the newest are all solved)."""
-    corrected = dict(solved)
     ids = sorted(own)
     index = {i: k for k, i in enumerate(ids)}
-    for p, q in itertools.pairwise(chain):
-        if index[q] - index[p] < 2:
-            continue
-        before, after = solved[p] @ invert(own[p]), solved[q] @ invert(own[q])
-        rotation = so3_log(before[:3, :3].T @ after[:3, :3])
-        for k in range(index[p] + 1, index[q]):
-            fraction = (k - index[p]) / (index[q] - index[p])
-            correction = np.eye(4)
-            correction[:3, :3] = before[:3, :3] @ so3_exp(fraction * rotation)
-            correction[:3, 3] = (1.0 - fraction) * before[:3, 3] + fraction * after[:3, 3]
-            corrected[ids[k]] = correction @ own[ids[k]]
-    return corrected
+    anchors = np.array([index[i] for i in chain])
+    free = np.setdiff1d(np.arange(len(ids)), anchors)
+    corrected = dict(solved)
+    if not len(free):
+        return corrected
+    corrections = np.stack([solved[i] @ invert(own[i]) for i in chain])
+    segment = np.searchsorted(anchors, free) - 1
+    fraction = (free - anchors[segment]) / (anchors[segment + 1] - anchors[segment])
+    before, after = corrections[segment], corrections[segment + 1]
+    turn = Rotation.from_matrix(np.swapaxes(before[:, :3, :3], 1, 2) @ after[:, :3, :3]).as_rotvec()
+    moved = np.broadcast_to(np.eye(4), (len(free), 4, 4)).copy()
+    moved[:, :3, :3] = before[:, :3, :3] @ Rotation.from_rotvec(turn * fraction[:, None]).as_matrix()
+    moved[:, :3, 3] = (1.0 - fraction)[:, None] * before[:, :3, 3] + fraction[:, None] * after[:, :3, 3]
+    poses = moved @ np.stack([own[ids[k]] for k in free])
+    corrected.update({ids[k]: pose for k, pose in zip(free, poses, strict=True)})
+    return dict(sorted(corrected.items()))
+
+
+def _steps(poses: list[Pose]) -> NDArray[np.float64]:
+    """``T_k⁻¹ · T_k+1`` of consecutive poses, all at once."""
+    stack = np.stack(poses)
+    rotation_t = np.swapaxes(stack[:-1, :3, :3], 1, 2)
+    steps = np.broadcast_to(np.eye(4), (len(poses) - 1, 4, 4)).copy()
+    steps[:, :3, :3] = rotation_t @ stack[1:, :3, :3]
+    steps[:, :3, 3] = np.einsum("kij,kj->ki", rotation_t, stack[1:, :3, 3] - stack[:-1, :3, 3])
+    return steps
 
 
 def _sigmas(sigma: tuple[float, float]) -> NDArray[np.float64]:

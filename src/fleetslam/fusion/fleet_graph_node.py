@@ -262,6 +262,7 @@ class FleetGraphNode:
             "agents_known": len(self.graph.agents), "agents_placed": len(solution.placements),
             "closures_kept": len(solution.kept), "closures_rejected": len(solution.rejected),
             "variables": solution.keyframes, "robust": solution.robust, "solve_ms": round(solution.seconds * 1e3, 1),
+            "solve_cpu_ms": round(solution.cpu_seconds * 1e3, 1),
             "solves": self.solves, **self.counts,
         }  # fmt: skip
         status_type = get_type("diagnostic_msgs/msg/DiagnosticStatus")
