@@ -54,7 +54,7 @@ class FleetGraphConfig(ConfigModel):
     """The fleet frame: parent of the placements, frame of the paths."""
     map_frame: str = "map"
     """Each agent's map frame, ``<agent>/<map_frame>`` in the placements."""
-    rate: float = Field(default=2.0, gt=0.0)
+    rate: float = Field(default=4.0, gt=0.0)
     """Most solves per second."""
     max_load: float = Field(default=0.6, gt=0.0, le=1.0)
     """Largest share of one core the solves may take: a solve that took t s is followed by the next one no sooner
@@ -79,6 +79,8 @@ class FleetGraphConfig(ConfigModel):
     """Distinct places (0.5 m apart) among those closures."""
     dominance: float = Field(default=2.0, ge=1.0)
     """The consistent set must be this many times larger than any set inconsistent with it (repeated structure)."""
+    path_tolerance: float = Field(default=0.005, ge=0.0)
+    """An agent's ``fleet_path`` is sent again when it has new keyframes or one moved more than this (m)."""
     request_timeout: float = Field(default=5.0, gt=0.0)
     """How long (s) a request for an agent's whole graph may take."""
 
@@ -111,7 +113,8 @@ class FleetGraphNode:
         self._asked: dict[str, float] = {}
         """When each agent's whole graph was last asked for (monotonic s)."""
         self._path_pubs: dict[str, Any] = {}
-        self._path_published: dict[str, int] = {}
+        self._path_published: dict[str, tuple[list[int], np.ndarray]] = {}
+        """Per agent, the keyframe ids and positions of the path last sent."""
         placements = topics.FLEET_PLACEMENTS
         self.placements_pub = node.create_publisher(placements.type, placements.name, placements.qos())
         diagnostics = topics.FLEET_BACKEND_DIAGNOSTICS
@@ -286,7 +289,9 @@ class FleetGraphNode:
         self.publish_paths()
 
     def publish_paths(self) -> None:
-        """Each placed agent's corrected keyframes, to whoever subscribes and has not had the last solve's."""
+        """Each placed agent's corrected keyframes, to whoever subscribes, when it has keyframes not sent yet or one
+        of them moved more than ``path_tolerance`` since its path was last sent (a solve nudges every keyframe by
+        fractions of a millimetre; resending 32 paths for that would cost more than the solve)."""
         if self.solution is None:
             return
         frame = self.config.frame_id
@@ -294,14 +299,20 @@ class FleetGraphNode:
         path_type = get_type("nav_msgs/msg/Path")
         for agent, placement in self.solution.placements.items():
             publisher = self._path_pubs.get(agent)
-            if publisher is None or self._path_published.get(agent) == self.solves:
-                continue
-            if not publisher.matched_subscriptions:
+            if publisher is None or not publisher.matched_subscriptions:
                 continue
             ids = sorted(placement.poses)
+            positions = np.array([placement.poses[i][:3, 3] for i in ids])
+            sent = self._path_published.get(agent)
+            if (
+                sent is not None
+                and sent[0] == ids
+                and (not len(ids) or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance)
+            ):
+                continue
             stamped = [
                 pose_stamped(header=header(frame, round(placement.stamps[i] * 1e9)), pose=pose)
                 for i, pose in zip(ids, pose_msgs([placement.poses[i] for i in ids]), strict=True)
             ]
             publisher.publish(path_type(header=header(frame, self.node.now_ns()), poses=stamped))
-            self._path_published[agent] = self.solves
+            self._path_published[agent] = (ids, positions)
