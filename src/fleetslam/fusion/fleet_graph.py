@@ -211,6 +211,7 @@ class FleetGraph:
             self._decisions.pop(pair, None)
         self._in_pairs = {k for k in self._in_pairs if agent not in (k[0], k[2])}
         self._solution.pop(agent, None)
+        self._judged = frozenset()  # its next run's closures may reuse the same keyframe ids: judged afresh
         if was_reference:
             self._solution.clear()  # the fleet frame itself is new
         self.changed = True
