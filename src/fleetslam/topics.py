@@ -27,8 +27,11 @@ __all__ = [
     "DEPTH_CAMERA_INFO",
     "DEPTH_IMAGE",
     "FINDINGS",
+    "FLEET_BACKEND_DIAGNOSTICS",
     "FLEET_MAP_OCCUPIED",
     "FLEET_MAP_OCTOMAP",
+    "FLEET_PATH",
+    "FLEET_PLACEMENTS",
     "FLEET_POSE",
     "FLEET_TOPICS",
     "FLEET_TRANSFORM",
@@ -136,6 +139,9 @@ FLEET_TRANSFORM = Topic(
 FLEET_POSE = Topic("slam/fleet_pose", "geometry_msgs/msg/PoseStamped", 5,
                    content="camera in the fleet frame, every frame once the agent is placed in it",
                    flow="slam → station, other agents")  # fmt: skip
+FLEET_PATH = Topic("fleet_path", "nav_msgs/msg/Path", 1, "transient_local",
+                   content="keyframes corrected by the joint optimisation, in the fleet frame; while subscribed",
+                   flow="fleet back-end → station, viewers")  # fmt: skip
 SLAM_DIAGNOSTICS = Topic(
     "slam/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
     content="frames received/processed/dropped, relocalisations, loop closures, timings; every processed frame",
@@ -160,15 +166,24 @@ FLEET_MAP_OCTOMAP = Topic("/fleet/map/octomap", "octomap_msgs/msg/Octomap", 1, "
 FINDINGS = Topic("/fleet/findings", "fleetslam_msgs/msg/FindingArray", 1, "transient_local",
                  content="every inspection finding, latest state, photos included; on change",
                  flow="findings service → station, report")  # fmt: skip
+FLEET_PLACEMENTS = Topic("/fleet/placements", "tf2_msgs/msg/TFMessage", 1, "transient_local",
+                         content="fleet → <agent>/map of every agent the joint optimisation placed, after each solve",
+                         flow="fleet back-end → fleet map, station")  # fmt: skip
+FLEET_BACKEND_DIAGNOSTICS = Topic(
+    "/fleet/backend/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
+    content="agents placed, closures kept/rejected, variables, solve time; after each solve",
+    flow="fleet back-end → operators, benchmarks",
+)  # fmt: skip
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", 1, content="sim time, when simulated", flow="sim → every node")
 
 AGENT_TOPICS: tuple[Topic, ...] = (
     CMD_VEL, CMD_VEL_STAMPED, ODOM, JOINT_STATES, RGB_IMAGE, DEPTH_IMAGE, CAMERA_INFO, DEPTH_CAMERA_INFO, TF_STATIC,
-    GROUND_TRUTH_ODOM, SLAM_ODOM, FLEET_POSE, FLEET_TRANSFORM, PATH, LIVEFRAMES, KEYFRAMES, KEYFRAME_SUMMARIES,
-    GRAPH, GRAPH_UPDATES, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
+    GROUND_TRUTH_ODOM, SLAM_ODOM, FLEET_POSE, FLEET_TRANSFORM, FLEET_PATH, PATH, LIVEFRAMES, KEYFRAMES,
+    KEYFRAME_SUMMARIES, GRAPH, GRAPH_UPDATES, SLAM_DIAGNOSTICS, MAP_OCCUPIED, MAP_MARKERS, MAP_GRID, MAP_OCTOMAP, TF,
 )  # fmt: skip
 """The topics of one agent, in its namespace."""
-FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, FINDINGS, CLOCK)
+FLEET_TOPICS: tuple[Topic, ...] = (STATISTICS, FLEET_MAP_OCCUPIED, FLEET_MAP_OCTOMAP, FINDINGS, FLEET_PLACEMENTS,
+                                   FLEET_BACKEND_DIAGNOSTICS, CLOCK)  # fmt: skip
 """The fleet-level topics (absolute names)."""
 
 

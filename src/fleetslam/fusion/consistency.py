@@ -103,16 +103,23 @@ def maximum_clique(adjacency: Sequence[set[int]], among: set[int] | None = None)
     return best
 
 
+def fit_frames(source: Sequence[Pose], target: Sequence[Pose]) -> Pose:
+    """``T`` with ``target[k] ≈ T · source[k]`` for every pair of poses, in the least-squares sense over each pose's
+    position and axes (one pair is enough)."""
+    if len(source) != len(target) or not len(source):
+        raise ValueError(f"fit_frames needs two equally long, non-empty lists of poses: {len(source)}, {len(target)}")
+    return rigid_fit(
+        np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in source]),
+        np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in target]),
+    )
+
+
 def fit_alignment(closures: Sequence[PairClosure]) -> Pose:
     """``T_ownmap_peermap`` that best agrees with all the closures (least squares over each closure's keyframe
     position and axes)."""
     if not closures:
         raise ValueError("fit_alignment needs at least one closure")
-    source = np.vstack([_PROBES @ c.peer_pose[:3, :3].T + c.peer_pose[:3, 3] for c in closures])
-    target = np.vstack(
-        [_PROBES @ (c.own_pose @ c.relative)[:3, :3].T + (c.own_pose @ c.relative)[:3, 3] for c in closures]
-    )
-    return rigid_fit(source, target)
+    return fit_frames([c.peer_pose for c in closures], [c.own_pose @ c.relative for c in closures])
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """The fleet's global map: every agent's occupancy octree moved into the fleet frame and fused.
 
-Each agent maps in its own `map` frame. Its transform into the fleet frame comes from its known start pose, or
-from inter-agent loop closures (:mod:`fleetslam.fusion.alignment`). An agent's voxel lands in the fleet voxel that
+Each agent maps in its own `map` frame. Its transform into the fleet frame comes from its known start pose, from the
+fleet back-end's joint optimisation (:mod:`fleetslam.fusion.fleet_graph`), or from the agent's own pairwise-consistent
+inter-agent closures (:mod:`fleetslam.fusion.collaboration`). An agent's voxel lands in the fleet voxel that
 holds its moved centre; where several land in one, the strongest evidence counts (:mod:`fleetslam.fusion._kernels`).
 Fusion adds the agents' log-odds evidence voxel by voxel (in agent name order, clamped), as if one robot had made
 all the observations; an agent's latest map replaces its previous one, so re-optimised agent maps never leave

@@ -249,3 +249,20 @@ def graph_update_from_message(msg: Any, poses: Sequence[Pose], stamps: Sequence[
         list(msg.constraints),
         int(msg.epoch),
     )
+
+
+def graph_message(agent: str, update: GraphUpdate[Any], *, frame_id: str = "map", stamp_ns: int = 0,
+                  optimized: bool = False) -> Any:  # fmt: skip
+    """The ``fleetslam_msgs/KeyframeGraph`` of an update whose constraints are ``GraphConstraint`` messages (the
+    inverse of :func:`graph_update_of`)."""
+    from fleetslam.msg.conversions import pose_msgs
+    from fleetslam.msg.typesys import get_type, header, stamp_from_ns
+
+    ids = sorted(update.poses)
+    return get_type("fleetslam_msgs/msg/KeyframeGraph")(
+        header=header(frame_id, stamp_ns), agent=agent, keyframe_ids=np.asarray(ids, np.uint32),
+        poses=pose_msgs([update.poses[i] for i in ids]),
+        stamps=[stamp_from_ns(round(update.stamps.get(i, 0.0) * 1e9)) for i in ids],
+        constraints=list(update.constraints), optimized=optimized, sequence=max(update.sequence, 1),
+        full=update.full, epoch=update.epoch,
+    )  # fmt: skip

@@ -1,11 +1,12 @@
 """The fleet map node: every agent's `map/octomap` in, the fused map in the fleet frame out.
 
 Agents are found in the graph (any `/<agent>/map/octomap` publisher) or listed in the parameters. An agent's map
-frame is placed in the fleet frame by its known start pose (``start_poses``, optional), else by the transform its
-SLAM publishes once its closures with the fleet agree (``slam/fleet_transform``, latched: ``fleet`` →
-``<agent>/map``, see :mod:`fleetslam.fusion.collaboration`); an agent placed by neither stays out of the fused map
-(with ``require_placement``) rather than land at the origin on top of the others. At ``publish_rate`` it takes each
-agent's latest map (the maps that came in between are skipped), fuses what changed into the fleet map, and
+frame is placed in the fleet frame by its known start pose (``start_poses``, optional), else by the fleet back-end's
+joint optimisation when one runs (``/fleet/placements``, latched, see :mod:`fleetslam.fusion.fleet_graph_node`),
+else by the transform its SLAM publishes once its closures with the fleet agree (``slam/fleet_transform``, latched:
+``fleet`` → ``<agent>/map``, see :mod:`fleetslam.fusion.collaboration`); an agent placed by none stays out of the
+fused map (with ``require_placement``) rather than land at the origin on top of the others. At ``publish_rate`` it
+takes each agent's latest map (the maps that came in between are skipped), fuses what changed into the fleet map, and
 publishes ``/fleet/map/occupied`` (PointCloud2) and ``/fleet/map/octomap`` if the fleet map changed — each only
 while someone subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the fused `.bt`.
 """
@@ -41,7 +42,8 @@ class FleetMapConfig(ConfigModel):
     """Resolution of the agents' maps and of the fused map (m)."""
     start_poses: dict[str, list[float]] = Field(default_factory=dict)
     """Per agent, its map frame in the fleet frame as [x, y, z, roll, pitch, yaw] (m, rad), when known; agents not
-    listed are placed by the transform their SLAM publishes once aligned with the fleet."""
+    listed are placed by the fleet back-end when one runs, else by the transform their SLAM publishes once aligned
+    with the fleet."""
     require_placement: bool = True
     """Leave an agent out of the fused map until it has a start pose or has published its place in the fleet frame
     (False: fuse it at the fleet origin meanwhile)."""
@@ -80,6 +82,10 @@ class FleetMapNode:
         self._latest: dict[str, bytes] = {}
         self._pending_placement: dict[str, np.ndarray] = {}
         """Per agent, the newest published placement not applied yet (applied at the next tick)."""
+        self._own_placement: dict[str, np.ndarray] = {}
+        """Per agent, the newest placement its own SLAM published (used while the back-end does not place it)."""
+        self.backend_placed: set[str] = set()
+        """Agents the fleet back-end places (their SLAM's own placement is then ignored)."""
         """Per agent, the latest map message (CDR) not fused yet."""
         self._version = 0
         self._published = {"occupied": 0, "octomap": 0}
@@ -90,6 +96,8 @@ class FleetMapNode:
         node.create_service("fleetslam_msgs/srv/SaveMap", "/fleet/map/save", self.on_save)
         for agent in self.config.agents:
             self._subscribe(agent)
+        placements = topics.FLEET_PLACEMENTS
+        node.create_subscription(placements.type, placements.name, self.on_backend_placements, placements.qos(depth=1))
         node.create_timer(1.0, self._discover)
         node.create_timer(1.0 / self.config.publish_rate, self.on_timer)
 
@@ -120,7 +128,31 @@ class FleetMapNode:
         if not np.isfinite(pose).all():
             log.warning("%s: placement is not finite; ignored", agent)
             return
-        self._pending_placement[agent] = pose
+        self._own_placement[agent] = pose
+        if agent not in self.backend_placed:
+            self._pending_placement[agent] = pose
+
+    def on_backend_placements(self, msg: Any) -> None:
+        """The fleet back-end's ``fleet → <agent>/map`` of every agent it places (``/fleet/placements``): preferred
+        to the agents' own; an agent it no longer places (it restarted) falls back to its SLAM's own placement.
+        Agents with a configured start pose keep it."""
+        placed: dict[str, np.ndarray] = {}
+        for transform in msg.transforms:
+            agent, _, frame = str(transform.child_frame_id).rpartition("/")
+            if transform.header.frame_id != self.config.frame_id or frame != "map" or not agent:
+                continue
+            try:
+                pose = transform_matrix(transform.transform)
+            except ValueError:
+                continue
+            if np.isfinite(pose).all() and agent not in self.config.start_poses:
+                placed[agent] = pose
+        for agent in self.backend_placed - set(placed):
+            self._pending_placement.pop(agent, None)
+            if agent in self._own_placement:
+                self._pending_placement[agent] = self._own_placement[agent]
+        self.backend_placed = set(placed)
+        self._pending_placement.update(placed)
 
     def _discover(self) -> None:
         if self.config.agents:
@@ -144,7 +176,8 @@ class FleetMapNode:
                 if np.linalg.norm(moved[:3, 3]) < tolerance and rotation_angle(moved) < tolerance / 10:
                     continue
             if known is None:
-                log.info("%s: placed in the fleet frame by its SLAM", agent)
+                by = "the fleet back-end" if agent in self.backend_placed else "its SLAM"
+                log.info("%s: placed in the fleet frame by %s", agent, by)
             self.placed[agent] = pose
             self.fleet.set_transform(agent, pose)
             self._version += 1

@@ -1,0 +1,431 @@
+"""The fleet back-end: one pose graph over every agent's keyframes, optimised jointly and robustly (GTSAM GNC).
+
+Each agent optimises its own keyframe graph in its own map frame and publishes it as deltas
+(:mod:`fleetslam.fusion.graph_exchange`), with the inter-agent closures it verified (``INTER_AGENT`` constraints:
+its keyframe ``from_id`` sees keyframe ``to_id`` of ``to_agent``'s run ``to_epoch``). :class:`FleetGraph` mirrors
+every agent's graph and solves for every keyframe's pose in the fleet frame (the reference agent's map frame:
+configured, by default the alphabetically first agent):
+
+- **intra-agent**: a ``BetweenFactorPose3`` between consecutive keyframes from the agent's own optimised poses
+  (its odometry and loops already in them), a known inlier;
+- **inter-agent**: a ``BetweenFactorPose3`` per closure (the same pair of keyframes reported by both agents counts
+  once), judged by GNC with a truncated-least-squares loss (``GncLMOptimizer``): a closure on repeated structure
+  that the rest of the graph disputes gets weight 0;
+- a prior on the reference agent's first keyframe (the fleet frame) and a weak one on every other agent's first
+  keyframe (so an agent whose closures GNC all rejected is not an indeterminate system).
+
+Only agents connected to the reference by closures are placed. A pair of agents is connected once its closures
+pass the pairwise-consistency test the agents use themselves (:class:`~fleetslam.fusion.consistency.ClosureSet`:
+enough mutually consistent closures, at more than one place, unrivalled); its rigid fit places a newly connected
+agent (initial values), after which the previous solution warm-starts every solve.
+
+Incremental and budgeted: :meth:`FleetGraph.solve` does nothing when no graph changed since the last solve; GNC
+runs only when the set of closures between placed agents changed (a new closure, a placed agent), otherwise plain
+Levenberg–Marquardt with the closures GNC kept, warm-started from the previous solution (new keyframes start where
+their agent's previous placement puts them), which converges in one or two iterations. The caller bounds the rate.
+Why a batch solve and not iSAM2: the agents re-optimise their own graphs (a loop closure moves every keyframe of
+that agent), which changes every intra-agent factor of that agent; iSAM2 would have to remove and re-add them all,
+and GNC has no incremental form anyway. A warm-started batch solve of a chain-like graph is linear in the number
+of keyframes (``benchmarks/fleet_backend.py`` measures it at 32 agents).
+
+Pure: no middleware. Poses are 4×4 ``T_map_camera`` (own map frame) or ``T_fleet_camera``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from fleetslam._imports import require
+from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure, fit_frames
+from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
+from fleetslam.geometry import invert
+
+log = logging.getLogger(__name__)
+
+Pose = NDArray[np.float64]
+ClosureKey = tuple[str, int, str, int]
+"""``(agent_a, id_a, agent_b, id_b)`` with ``(agent_a, id_a) < (agent_b, id_b)``: one pair of keyframes."""
+
+_SLOT_BITS = 32
+"""A variable's key is ``slot << 32 | keyframe id``: each (re-)added agent gets a new slot."""
+
+
+def _gtsam() -> Any:
+    return require("gtsam", "slam")
+
+
+@dataclass(frozen=True)
+class ClosureReport:
+    """An inter-agent closure as an agent published it: its keyframe ``from_id`` sees ``to_agent``'s ``to_id``."""
+
+    from_agent: str
+    from_id: int
+    to_agent: str
+    to_id: int
+    relative: Pose
+    """``T_fromcamera_tocamera``."""
+    to_epoch: int
+    """The run of ``to_agent`` that ``to_id`` belongs to."""
+
+    @cached_property
+    def oriented(self) -> FleetClosure:
+        """The closure as :class:`FleetClosure` (computed once: the fleet graph looks at every closure every solve)."""
+        return FleetClosure.of(self)
+
+
+@dataclass(frozen=True)
+class FleetClosure:
+    """One pair of keyframes of two agents, oriented so that ``(a, a_id) < (b, b_id)``."""
+
+    a: str
+    a_id: int
+    b: str
+    b_id: int
+    relative: Pose
+    """``T_acamera_bcamera``."""
+
+    @property
+    def key(self) -> ClosureKey:
+        return (self.a, self.a_id, self.b, self.b_id)
+
+    @classmethod
+    def of(cls, report: ClosureReport) -> FleetClosure:
+        if (report.from_agent, report.from_id) <= (report.to_agent, report.to_id):
+            return cls(report.from_agent, report.from_id, report.to_agent, report.to_id, report.relative)
+        return cls(report.to_agent, report.to_id, report.from_agent, report.from_id, invert(report.relative))
+
+
+@dataclass(frozen=True)
+class AgentPlacement:
+    """Where the joint optimisation puts one agent."""
+
+    T_fleet_map: Pose
+    """Rigid fit of its corrected keyframe poses to its own ones: ``corrected ≈ T_fleet_map · own``."""
+    poses: dict[int, Pose]
+    """Keyframe id -> corrected ``T_fleet_camera``."""
+    stamps: dict[int, float]
+    """Keyframe id -> stamp (s)."""
+
+
+@dataclass(frozen=True)
+class FleetSolution:
+    """The outcome of one :meth:`FleetGraph.solve`."""
+
+    placements: dict[str, AgentPlacement]
+    """The agents placed in the fleet frame (the reference among them)."""
+    kept: list[FleetClosure]
+    """Closures between placed agents that GNC believes."""
+    rejected: list[FleetClosure]
+    """Closures between placed agents that GNC gave weight 0 (or that are still pending for lack of evidence)."""
+    robust: bool
+    """GNC ran (the closures changed); else Levenberg–Marquardt with the ``kept`` closures."""
+    keyframes: int
+    """Variables of the solve."""
+    seconds: float
+    """Wall time of the solve (building the graph included)."""
+    cpu_seconds: float = 0.0
+    """CPU time of the solving thread (what the solve costs, whatever else the machine runs)."""
+
+
+@dataclass
+class _Agent:
+    mirror: GraphMirror[ClosureReport]
+    slot: int
+    restarts: int = 0
+
+
+@dataclass
+class FleetGraph:
+    """Every agent's keyframe graph and inter-agent closures in, one placement per agent out (module docstring)."""
+
+    reference: str = ""
+    """The agent whose map frame is the fleet frame; empty: the alphabetically first agent known."""
+    odometry_sigma: tuple[float, float] = (0.05, 0.02)
+    """Standard deviation (m, rad) of the relative pose of two consecutive keyframes of one agent."""
+    closure_sigma: tuple[float, float] = (0.05, 0.02)
+    """Standard deviation (m, rad) of an inter-agent closure."""
+    inlier_probability: float = 0.99
+    """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
+    max_iterations: int = 20
+    """Levenberg–Marquardt iterations per solve (each GNC step too)."""
+    coarse_stride: int = 5
+    """Of an agent's older keyframes, every ``coarse_stride``-th is a variable (and every closure's keyframe); the
+    ones between follow their corrections. 1: every keyframe is a variable."""
+    recent_keyframes: int = 10
+    """An agent's newest keyframes that are all variables."""
+    tolerance: ConsistencyTolerance = field(default_factory=ConsistencyTolerance)
+    """Pairwise consistency of two agents' closures (see :class:`ClosureSet`)."""
+    min_closures: int = 3
+    min_places: int = 2
+    dominance: float = 2.0
+    agents: dict[str, _Agent] = field(default_factory=dict)
+    changed: bool = False
+    """A graph changed since the last solve."""
+    _next_slot: int = 1
+    _pairs: dict[tuple[str, str], ClosureSet] = field(default_factory=dict)
+    _decisions: dict[tuple[str, str], Decision] = field(default_factory=dict)
+    _in_pairs: set[ClosureKey] = field(default_factory=set)
+    _solution: dict[str, AgentPlacement] = field(default_factory=dict)
+    _judged: frozenset[ClosureKey] = frozenset()
+    """The closures the last GNC judged; ``_kept`` those it kept."""
+    _kept: frozenset[ClosureKey] = frozenset()
+    _solved_reference: str | None = None
+
+    # -- input ---------------------------------------------------------------------------------------------------
+    def apply(self, agent: str, update: GraphUpdate[ClosureReport]) -> bool:
+        """Apply an agent's graph update (only its ``INTER_AGENT`` constraints, as :class:`ClosureReport`); False
+        when the agent's full graph must be requested (a gap). A new epoch (the agent restarted its SLAM: a new
+        map frame) drops the agent and adds it again."""
+        state = self.agents.get(agent)
+        if state is not None and state.mirror.epoch not in (0, update.epoch):
+            restarts = state.restarts + 1
+            self.drop(agent)
+            log.info("%s restarted (epoch %d): dropped and added again", agent, update.epoch)
+            state = None
+        else:
+            restarts = 0 if state is None else state.restarts
+        if state is None:
+            state = self.agents[agent] = _Agent(GraphMirror(), self._next_slot, restarts)
+            self._next_slot += 1
+        synced = state.mirror.apply(update)
+        self.changed = True
+        return synced
+
+    def drop(self, agent: str) -> None:
+        """Forget an agent: its keyframes, its closures and its place (the reference: everyone's place)."""
+        was_reference = agent == self.reference_agent()
+        if self.agents.pop(agent, None) is None:
+            return
+        for pair in [p for p in self._pairs if agent in p]:
+            del self._pairs[pair]
+            self._decisions.pop(pair, None)
+        self._in_pairs = {k for k in self._in_pairs if agent not in (k[0], k[2])}
+        self._solution.pop(agent, None)
+        self._judged = frozenset()  # its next run's closures may reuse the same keyframe ids: judged afresh
+        if was_reference:
+            self._solution.clear()  # the fleet frame itself is new
+        self.changed = True
+
+    def reference_agent(self) -> str | None:
+        """The agent whose map frame is the fleet frame, once it is known."""
+        if self.reference:
+            return self.reference
+        return min(self.agents) if self.agents else None
+
+    def unsynced(self) -> list[str]:
+        """Agents whose graph has a gap (their full graph is needed)."""
+        return sorted(a for a, state in self.agents.items() if not state.mirror.synced)
+
+    def restarts(self, agent: str) -> int:
+        """Times ``agent`` was seen to restart."""
+        state = self.agents.get(agent)
+        return state.restarts if state is not None else 0
+
+    # -- closures and placement -----------------------------------------------------------------------------------
+    def closures(self) -> dict[ClosureKey, FleetClosure]:
+        """The valid closures: of agents' current runs, both keyframes known (the first report of a pair wins)."""
+        found: dict[ClosureKey, FleetClosure] = {}
+        for agent in sorted(self.agents):
+            for report in self.agents[agent].mirror.constraints:
+                target = self.agents.get(report.to_agent)
+                if report.from_agent != agent or target is None or target.mirror.epoch != report.to_epoch:
+                    continue
+                if report.from_id not in self.agents[agent].mirror.poses or report.to_id not in target.mirror.poses:
+                    continue
+                closure = report.oriented
+                found.setdefault(closure.key, closure)
+        return found
+
+    def _update_pairs(self, closures: Iterable[FleetClosure]) -> None:
+        """New closures into their pair's consistency test, while the pair is not placed in one solution (then GNC
+        judges its closures, and the test's cost, growing with the closures it holds, is saved)."""
+        for closure in closures:
+            if closure.key in self._in_pairs:
+                continue
+            self._in_pairs.add(closure.key)
+            if closure.a in self._solution and closure.b in self._solution:
+                continue
+            pair = (closure.a, closure.b)
+            closure_set = self._pairs.get(pair)
+            if closure_set is None:
+                closure_set = self._pairs[pair] = ClosureSet(
+                    tolerance=self.tolerance, min_inliers=self.min_closures, min_places=self.min_places,
+                    dominance=self.dominance,
+                )  # fmt: skip
+            own, peer = self.agents[closure.a].mirror.poses, self.agents[closure.b].mirror.poses
+            if closure_set.add(PairClosure(closure.a_id, closure.b_id, own[closure.a_id], peer[closure.b_id],
+                                           closure.relative)):  # fmt: skip
+                self._decisions[pair] = closure_set.decide()
+
+    def connected(self) -> dict[str, Pose]:
+        """``T_fleet_map`` of every agent the pairwise-consistent closures connect to the reference (breadth first,
+        from the pairs' rigid fits): the placement of agents not solved before."""
+        reference = self.reference_agent()
+        if reference is None or reference not in self.agents:
+            return {}
+        edges: dict[str, list[tuple[str, Pose]]] = {}
+        for (a, b), decision in sorted(self._decisions.items()):
+            if decision.alignment is not None and a in self.agents and b in self.agents:
+                edges.setdefault(a, []).append((b, decision.alignment))
+                edges.setdefault(b, []).append((a, invert(decision.alignment)))
+        placed = {reference: np.eye(4)}
+        frontier = [reference]
+        while frontier:
+            agent = frontier.pop(0)
+            for other, T_agent_other in edges.get(agent, []):
+                if other not in placed:
+                    placed[other] = placed[agent] @ T_agent_other
+                    frontier.append(other)
+        return placed
+
+    # -- the solve ------------------------------------------------------------------------------------------------
+    def solve(self) -> FleetSolution | None:
+        """Re-optimise if a graph changed since the last solve (else None); see the module docstring."""
+        if not self.changed:
+            return None
+        self.changed = False
+        started, started_cpu = time.perf_counter(), time.thread_time()
+        g = _gtsam()
+        reference = self.reference_agent()
+        if reference != self._solved_reference:
+            # The fleet frame is another agent's map frame now (an alphabetically earlier agent appeared, or the
+            # reference restarted): the previous solution is in the old frame and must not warm-start the new one.
+            self._solution, self._judged, self._kept = {}, frozenset(), frozenset()
+            self._solved_reference = reference
+        closures = self.closures()
+        self._update_pairs(closures.values())
+        connected = self.connected()
+        placed = sorted(a for a in connected if self.agents[a].mirror.poses)
+        if not placed:
+            self._solution = {}
+            return FleetSolution({}, [], [], False, 0, time.perf_counter() - started, time.thread_time() - started_cpu)
+        between = [c for c in closures.values() if c.a in placed and c.b in placed and c.a != c.b]
+        endpoints: dict[str, set[int]] = {}
+        for c in between:
+            endpoints.setdefault(c.a, set()).add(c.a_id)
+            endpoints.setdefault(c.b, set()).add(c.b_id)
+        graph = g.NonlinearFactorGraph()
+        values = g.Values()
+        odometry_noise: dict[int, Any] = {}
+        chains: dict[str, list[int]] = {}
+        for agent in placed:
+            own = self.agents[agent].mirror.poses
+            ids = sorted(own)
+            chain = chains[agent] = self._chain(ids, endpoints.get(agent, set()))
+            previous = self._solution.get(agent)
+            T_fleet_map = previous.T_fleet_map if previous is not None else connected[agent]
+            for i in chain:
+                guess = previous.poses.get(i) if previous is not None else None
+                values.insert(self._key(agent, i), g.Pose3(guess if guess is not None else T_fleet_map @ own[i]))
+            first = self._key(agent, chain[0])
+            if agent == reference:
+                graph.add(g.PriorFactorPose3(first, g.Pose3(own[chain[0]]), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
+            else:
+                graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
+            index = {i: k for k, i in enumerate(ids)}
+            for (i, j), relative in zip(itertools.pairwise(chain), _steps([own[i] for i in chain]), strict=True):
+                steps = index[j] - index[i]
+                if steps not in odometry_noise:  # the steps' errors add up: sigma grows with their square root
+                    odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(_sigmas(self.odometry_sigma) * np.sqrt(steps))
+                graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j), g.Pose3(relative),
+                                               odometry_noise[steps]))  # fmt: skip
+        known = int(graph.size())
+        judged = frozenset(c.key for c in between)
+        robust = judged != self._judged
+        used = between if robust else [c for c in between if c.key in self._kept]
+        closure_noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
+        for c in used:
+            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative),
+                                           closure_noise))  # fmt: skip
+        lm = g.LevenbergMarquardtParams()
+        lm.setMaxIterations(self.max_iterations)
+        if robust and used:
+            params = g.GncLMParams(lm)
+            params.setLossType(g.GncLossType.TLS)
+            params.setKnownInliers(list(range(known)))
+            optimizer = g.GncLMOptimizer(graph, values, params)
+            optimizer.setInlierCostThresholdsAtProbability(self.inlier_probability)
+            result = optimizer.optimize()
+            weights = np.asarray(optimizer.getWeights())[known:]
+            self._kept = frozenset(c.key for c, w in zip(used, weights, strict=True) if w > 0.5)
+            self._judged = judged
+        else:
+            result = g.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
+            if robust:
+                self._kept, self._judged = frozenset(), judged
+        solution = {}
+        for agent in placed:
+            mirror = self.agents[agent].mirror
+            solved = {i: np.asarray(result.atPose3(self._key(agent, i)).matrix(), dtype=np.float64)
+                      for i in chains[agent]}  # fmt: skip
+            corrected = _fill_between(mirror.poses, chains[agent], solved)
+            ids = sorted(corrected)
+            T_fleet_map = fit_frames([mirror.poses[i] for i in chains[agent]], [solved[i] for i in chains[agent]])
+            solution[agent] = AgentPlacement(T_fleet_map, corrected, {i: mirror.stamps.get(i, 0.0) for i in ids})
+        self._solution = solution
+        kept = [c for c in between if c.key in self._kept]
+        rejected = [c for c in between if c.key not in self._kept]
+        return FleetSolution(solution, kept, rejected, robust and bool(used), int(values.size()),
+                             time.perf_counter() - started, time.thread_time() - started_cpu)  # fmt: skip
+
+    @property
+    def solution(self) -> dict[str, AgentPlacement]:
+        """The agents placed by the last solve."""
+        return self._solution
+
+    def _chain(self, ids: list[int], endpoints: set[int]) -> list[int]:
+        """The keyframes solved for (``ids`` sorted): the first, the ``recent_keyframes`` newest, every
+        ``coarse_stride``-th and every closure's; the others follow the solved ones on either side."""
+        recent = len(ids) - self.recent_keyframes
+        return [i for k, i in enumerate(ids) if k % self.coarse_stride == 0 or k >= recent or i in endpoints]
+
+    def _key(self, agent: str, keyframe_id: int) -> int:
+        return (self.agents[agent].slot << _SLOT_BITS) | int(keyframe_id)
+
+
+def _fill_between(own: dict[int, Pose], chain: list[int], solved: dict[int, Pose]) -> dict[int, Pose]:
+    """Every keyframe's corrected pose: the solved ones as solved; one between two solved keyframes moves by their
+    corrections (``T_corrected · T_own⁻¹``) interpolated by its place between them (the newest are all solved)."""
+    ids = sorted(own)
+    index = {i: k for k, i in enumerate(ids)}
+    anchors = np.array([index[i] for i in chain])
+    free = np.setdiff1d(np.arange(len(ids)), anchors)
+    corrected = dict(solved)
+    if not len(free):
+        return corrected
+    corrections = np.stack([solved[i] @ invert(own[i]) for i in chain])
+    segment = np.searchsorted(anchors, free) - 1
+    fraction = (free - anchors[segment]) / (anchors[segment + 1] - anchors[segment])
+    before, after = corrections[segment], corrections[segment + 1]
+    turn = Rotation.from_matrix(np.swapaxes(before[:, :3, :3], 1, 2) @ after[:, :3, :3]).as_rotvec()
+    moved = np.broadcast_to(np.eye(4), (len(free), 4, 4)).copy()
+    moved[:, :3, :3] = before[:, :3, :3] @ Rotation.from_rotvec(turn * fraction[:, None]).as_matrix()
+    moved[:, :3, 3] = (1.0 - fraction)[:, None] * before[:, :3, 3] + fraction[:, None] * after[:, :3, 3]
+    poses = moved @ np.stack([own[ids[k]] for k in free])
+    corrected.update({ids[k]: pose for k, pose in zip(free, poses, strict=True)})
+    return dict(sorted(corrected.items()))
+
+
+def _steps(poses: list[Pose]) -> NDArray[np.float64]:
+    """``T_k⁻¹ · T_k+1`` of consecutive poses, all at once."""
+    stack = np.stack(poses)
+    rotation_t = np.swapaxes(stack[:-1, :3, :3], 1, 2)
+    steps = np.broadcast_to(np.eye(4), (len(poses) - 1, 4, 4)).copy()
+    steps[:, :3, :3] = rotation_t @ stack[1:, :3, :3]
+    steps[:, :3, 3] = np.einsum("kij,kj->ki", rotation_t, stack[1:, :3, 3] - stack[:-1, :3, 3])
+    return steps
+
+
+def _sigmas(sigma: tuple[float, float]) -> NDArray[np.float64]:
+    """GTSAM's Pose3 tangent order: rotation first."""
+    return np.array([sigma[1]] * 3 + [sigma[0]] * 3, dtype=np.float64)
