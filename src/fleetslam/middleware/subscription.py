@@ -121,7 +121,9 @@ class Subscription(Entity):
         self.max_payload_bytes = max_payload_bytes
         self.inline = inline
         self._with_info = _accepts_info(callback)
-        self._post = node.call_soon
+        self._post = node.executor_post
+        self._dispatch_bound = self._dispatch
+        """Posted once per queued sample (one bound method for all of them, not one made per sample)."""
         self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
             maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
         )
@@ -240,7 +242,7 @@ class Subscription(Entity):
             if full:
                 self.queue_overflows += 1
         if not full:
-            self._post(self._dispatch)
+            self._post(self._dispatch_bound)
 
     def _drop(self, gid: bytes | None, size: int, cause: str, message: str, *args: object) -> None:
         """Count a sample dropped on arrival as an error of its publisher (if known) and log it, rate-limited."""
@@ -255,7 +257,7 @@ class Subscription(Entity):
         self._deliver(payload, info)
 
     def _deliver(self, payload: bytes | zenoh.ZBytes, info: MessageInfo) -> None:
-        if type(payload) is not bytes:
+        if not isinstance(payload, bytes):
             payload = payload.to_bytes()
         message: Any = payload
         if not self.raw:

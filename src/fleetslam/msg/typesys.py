@@ -195,10 +195,10 @@ def serialize_buffer(msg: object, type_name: str) -> bytearray:
             encoded = text.encode()
             if b"\0" not in encoded:  # rosbags writes such a string too; leave the odd case to it
                 length = len(encoded) + 1
-                buffer = bytearray(8 + length)
-                _STRING_PREFIX.pack_into(buffer, 0, 0x100, length)
-                buffer[8 : 7 + length] = encoded
-                return buffer
+                fast = bytearray(8 + length)
+                _STRING_PREFIX.pack_into(fast, 0, 0x100, length)
+                fast[8 : 7 + length] = encoded
+                return fast
     store = get_typestore()
     if type_name not in store.fielddefs:
         get_type(type_name)
