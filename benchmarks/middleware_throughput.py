@@ -17,7 +17,16 @@ the same run: 1 MB throughput ≥ 0.8× and p50 latency ≤ 1.5×; 64 B throughp
 for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetslam's layers cost at each end
 (serialization, attachment, statistics, hand-off, deserialization; the subscriber reads every image as an array).
 
+``--layers N`` measures instead, in this one process, the thread CPU time per message of each layer at both ends
+(N messages of 64 B, N/50 of 1 MB, on a real sample through a router): serialization, ``publish_raw`` (sequence
+number, attachment, put) against raw Zenoh's put of the same payload to the same subscriber, the attachment, the
+payload's copy out of Zenoh, the statistics, deserialization, and the subscription's own entry point on Zenoh's
+thread and its executor's share (``inline`` too), against what the raw Zenoh peer's callback does. Thread CPU time
+does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
+and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
+
     python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy] [--payloads image_1mb,string_64b,kinect]
+    python benchmarks/middleware_throughput.py --layers 100000 [--payloads string_64b,image_1mb]
 """
 
 from __future__ import annotations
