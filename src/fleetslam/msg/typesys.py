@@ -251,8 +251,6 @@ def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
 _STRING = "std_msgs/msg/String"
 _STRING_PREFIX = struct.Struct("<II")
 """CDR header (00 01 00 00, read as a little-endian uint32) and the string's length with its terminator."""
-_string_class: Any = None
-"""The String dataclass, looked up on first use (the typestore is built lazily)."""
 
 
 def _string_le(raw: bytes) -> Any:
@@ -271,10 +269,7 @@ def _string_le(raw: bytes) -> Any:
         text = raw[8 : end - 1].decode()
     except UnicodeDecodeError:
         return None
-    global _string_class
-    if _string_class is None:
-        _string_class = get_type(_STRING)
-    return _string_class(text)
+    return (_decoders.get(_STRING) or _decoder(_STRING))[2](text)  # the class, as the general decoder's
 
 
 _decoders: dict[str, tuple[Any, Any, Any, Typestore]] = {}
