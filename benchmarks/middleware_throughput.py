@@ -17,13 +17,23 @@ the same run: 1 MB throughput ≥ 0.8× and p50 latency ≤ 1.5×; 64 B throughp
 for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetslam's layers cost at each end
 (serialization, attachment, statistics, hand-off, deserialization; the subscriber reads every image as an array).
 
+``--layers N`` measures instead, in this one process, the thread CPU time per message of each layer at both ends
+(N messages of 64 B, N/50 of 1 MB, on a real sample through a router): serialization, ``publish_raw`` (sequence
+number, attachment, put) against raw Zenoh's put of the same payload to the same subscriber, the attachment, the
+payload's copy out of Zenoh, the statistics, deserialization, and the subscription's own entry point on Zenoh's
+thread and its executor's share (``inline`` too), against what the raw Zenoh peer's callback does. Thread CPU time
+does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
+and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
+
     python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy] [--payloads image_1mb,string_64b,kinect]
+    python benchmarks/middleware_throughput.py --layers 100000 [--payloads string_64b,image_1mb]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import socket
@@ -331,6 +341,151 @@ def measure_rclpy(python: Path, kind: str, mode: str, duration: float, rate: flo
     return receiver
 
 
+# -- layers: thread CPU time per message of each of fleetslam's layers, in one process ---------------------------
+def _us_per_message(work: Any, count: int) -> float:
+    """Thread CPU µs per call of ``work(count)`` (independent of what else runs on the machine, unlike wall time)."""
+    import gc
+
+    gc.collect()
+    start = time.thread_time_ns()
+    work(count)
+    return round((time.thread_time_ns() - start) / count / 1000, 3)
+
+
+def measure_layers(kind: str, count: int) -> dict[str, float]:
+    """Each layer of both ends on a real sample (a fleetslam publisher's, through a router), ``count`` times.
+
+    The totals run the subscription's own entry point on that sample: on Zenoh's thread (checks, statistics,
+    queueing; with ``inline`` also decoding and the callback) and on the executor (hand-off, decoding, callback).
+    """
+    from fleetslam.middleware import Context, Node, QoSProfile, Router
+    from fleetslam.middleware.statistics import SubscriptionStatistics
+    from fleetslam.msg.typesys import deserialize, serialize_buffer
+
+    type_name, msg = make_message(kind)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rows: dict[str, float] = {}
+    with Router([endpoint]):
+        ctx = Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False)
+        peer = Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}, statistics=False)
+        node = Node("bench_layers", context=ctx, statistics_period_s=0)
+        publisher = node.create_publisher(type_name, "/bench/layers", QoSProfile(history="keep_all"))
+        samples: list[Any] = []
+        remote = peer.session.declare_subscriber(  # the puts go on the wire; the first sample is kept
+            publisher.key, lambda received: samples.append(received) if not samples else None
+        )
+        time.sleep(0.5)
+        publisher.publish(msg)
+        deadline = time.monotonic() + 5.0
+        while not samples and time.monotonic() < deadline:
+            time.sleep(0.01)
+        sample = samples[0]
+        payload = serialize_buffer(msg, type_name)
+        unpack = struct.Struct("<qqB16s").unpack
+
+        def serialize(n: int) -> None:
+            for _ in range(n):
+                serialize_buffer(msg, type_name)
+
+        def publish_raw(n: int) -> None:
+            for _ in range(n):
+                publisher.publish_raw(payload)
+
+        def publish(n: int) -> None:
+            for _ in range(n):
+                publisher.publish(msg)
+
+        raw_publisher = ctx.session.declare_publisher(publisher.key)
+
+        def zenoh_put(n: int) -> None:
+            attachment = struct.pack("<q", 0)
+            for _ in range(n):
+                raw_publisher.put(payload, attachment=attachment)
+
+        rows["pub_serialize"] = _us_per_message(serialize, count)
+        for _ in range(2):  # alternately, the better of two: a put may wait for the previous run's backlog
+            for name, work in (("pub_zenoh_put_ref", zenoh_put), ("pub_publish_raw", publish_raw)):
+                time.sleep(0.3)
+                rows[name] = min(rows.get(name, math.inf), _us_per_message(work, count))
+        time.sleep(0.3)
+        rows["pub_total"] = _us_per_message(publish, count)
+        time.sleep(0.5)
+        remote.undeclare()
+
+        def attachment(n: int) -> None:
+            for _ in range(n):
+                unpack(sample.attachment.to_bytes())
+
+        def payload_copy(n: int) -> None:
+            for _ in range(n):
+                zbytes = sample.payload
+                len(zbytes)
+                zbytes.to_bytes()
+
+        statistics = SubscriptionStatistics(time.time_ns())
+        gid = unpack(sample.attachment.to_bytes())[3]
+
+        def statistics_update(n: int) -> None:
+            for i in range(n):
+                statistics.on_sample(gid, i + 1, 0, time.time_ns(), 64)
+
+        data = sample.payload.to_bytes()
+
+        def decode(n: int) -> None:
+            for _ in range(n):
+                deserialize(data, type_name)
+
+        rows["sub_attachment"] = _us_per_message(attachment, count)
+        rows["sub_payload_copy"] = _us_per_message(payload_copy, count)
+        rows["sub_statistics"] = _us_per_message(statistics_update, count)  # with the receive time_ns()
+        rows["sub_deserialize"] = _us_per_message(decode, count)
+        for inline in (False, True):
+            rows.update(_subscription_path(node, type_name, sample, count, inline=inline))
+
+        def zenoh_callback(n: int) -> None:  # what the raw Zenoh peer's subscriber does with each sample
+            for _ in range(n):
+                sample.payload.to_bytes()
+                struct.unpack("<q", sample.attachment.to_bytes()[:8])
+
+        rows["sub_zenoh_callback_ref"] = _us_per_message(zenoh_callback, count)
+        peer.close()
+        ctx.close()
+    return rows
+
+
+def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, inline: bool) -> dict[str, float]:
+    """Thread CPU µs per sample of a subscription's entry point on Zenoh's thread and of its executor's share."""
+    from fleetslam.middleware import QoSProfile
+
+    delivered = [0]
+
+    def callback(msg: Any, info: Any) -> None:
+        delivered[0] += 1
+
+    subscription = node.create_subscription(
+        type_name, "/bench/layers_copy", callback, QoSProfile(history="keep_all"), inline=inline
+    )
+    executor_cpu: list[int] = []
+    marks = [threading.Event(), threading.Event()]
+
+    def mark(index: int) -> None:
+        executor_cpu.append(time.thread_time_ns())
+        marks[index].set()
+
+    node.call_soon(lambda: mark(0))
+    marks[0].wait(5.0)
+    receive = subscription._on_sample
+    path = "inline" if inline else "executor"
+    rows = {f"sub_{path}_zenoh_thread": _us_per_message(lambda n: [receive(sample) for _ in range(n)], count)}
+    node.call_soon(lambda: mark(1))
+    marks[1].wait(120.0)
+    rows[f"sub_{path}_executor_thread"] = round((executor_cpu[1] - executor_cpu[0]) / count / 1000, 3)
+    if delivered[0] != count:
+        raise RuntimeError(f"layers: {delivered[0]} of {count} samples delivered ({path})")
+    subscription.destroy()
+    return rows
+
+
 # -- main -------------------------------------------------------------------------------------------------------
 def summarize(throughput: Receiver, latency: Receiver) -> dict[str, Any]:
     lat_ms = np.asarray(latency.latencies_ns, dtype=np.float64) / 1e6
@@ -395,11 +550,25 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--no-rclpy", action="store_true", help="skip the rclpy peer")
     parser.add_argument(
+        "--layers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="instead: thread CPU µs per message of each layer, N messages (1 MB: N/50), in this process",
+    )
+    parser.add_argument(
         "--payloads", default="image_1mb,string_64b,kinect", help="comma-separated subset of the default"
     )
     args = parser.parse_args()
     if args.role == "pub":
         run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate)
+        return
+    if args.layers:
+        wanted_layers = [k.strip() for k in args.payloads.split(",") if k.strip() in PAYLOADS]
+        layer_rows = {
+            k: measure_layers(k, args.layers if k == "string_64b" else max(1, args.layers // 50)) for k in wanted_layers
+        }
+        print(json.dumps({"benchmark": "middleware_layers", "us_per_msg_thread_cpu": layer_rows}))
         return
 
     results: dict[str, Any] = {

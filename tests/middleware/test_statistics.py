@@ -4,6 +4,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import pytest
 import zenoh
 
 from fleetslam.middleware import Context, Node, QoSProfile
@@ -223,3 +224,85 @@ def test_one_publisher_table_evicts_the_previous_publisher_into_others() -> None
     others = reports[bytes(16)]
     assert (others.delivered, others.dropped, others.traffic_bytes) == (3, 1, 4)  # A's 2 (1 gap) and B's 1
     assert acc.total_delivered == 4 and acc.total_dropped == 1
+
+
+def _textbook_windows(events: list[tuple[Any, ...]]) -> list[dict[bytes, tuple[Any, ...]]]:
+    """Each window's (delivered, dropped, traffic, period mean/σ/max, age mean/σ/max) per GID, from whole lists."""
+    windows: list[dict[bytes, tuple[Any, ...]]] = []
+    current: dict[bytes, dict[str, Any]] = {}
+    last_seq: dict[bytes, int] = {}
+    last_receive: dict[bytes, int] = {}
+    for event in events:
+        if event[0] == "close":
+            windows.append(
+                {
+                    gid: (
+                        w["delivered"], w["dropped"], w["traffic"],
+                        *[(pystats.fmean(v), pystats.stdev(v) if len(v) > 1 else 0.0, max(v)) if v else (0.0, 0.0, 0.0)
+                          for v in (w["periods"], w["ages"])],
+                    )
+                    for gid, w in current.items()
+                }
+            )  # fmt: skip
+            current = {}
+            continue
+        _, gid, seq, source, receive, size = event
+        w = current.setdefault(gid, {"delivered": 0, "dropped": 0, "traffic": 0, "periods": [], "ages": []})
+        w["delivered"] += 1
+        w["traffic"] += size
+        if gid in last_seq and seq > last_seq[gid] + 1:
+            w["dropped"] += seq - last_seq[gid] - 1
+        last_seq[gid] = max(seq, last_seq.get(gid, seq))
+        if gid in last_receive:
+            w["periods"].append(receive - last_receive[gid])
+        last_receive[gid] = receive
+        w["ages"].append(receive - source)
+    return windows
+
+
+def test_batched_statistics_match_the_textbook_on_long_random_streams() -> None:
+    """Samples are folded in batches (NumPy) or one by one (small batches, numbers beyond int64 arithmetic); every
+    window must report what whole-list formulas give: counts exactly, means and σ to rounding."""
+    rng = np.random.default_rng(11)
+    gids = [GID_A, GID_B, bytes(range(32, 48))]
+    sequence = dict.fromkeys(gids, 0)
+    now = 1_700_000_000_000_000_000
+    events: list[tuple[Any, ...]] = []
+    for i in range(12_000):
+        gid = gids[0] if rng.random() < 0.8 else gids[int(rng.integers(1, 3))]
+        sequence[gid] += int(rng.choice([1, 1, 1, 1, 1, 2, 7, 0, -2]))
+        if i == 5_000:
+            sequence[gid] = 2**41  # a forged jump: that batch is folded exactly, in Python
+        now += int(rng.integers(0, 3_000_000))
+        source = now - int(rng.integers(0, 20_000_000)) if i != 7_000 else -(2**64)  # beyond int64
+        events.append(("sample", gid, sequence[gid], source, now, int(rng.integers(1, 100))))
+        if rng.random() < 0.0015:
+            events.append(("close",))
+    events.append(("close",))
+    acc = SubscriptionStatistics(now_ns=0)
+    got: list[dict[bytes, tuple[Any, ...]]] = []
+    for event in events:
+        if event[0] == "close":
+            got.append(
+                {
+                    r.publisher_gid: (
+                        r.delivered, r.dropped, r.traffic_bytes,
+                        (r.period_mean_ns, r.period_stddev_ns, r.period_max_ns),
+                        (r.age_mean_ns, r.age_stddev_ns, r.age_max_ns),
+                    )
+                    for r in acc.close_window(now)
+                }
+            )  # fmt: skip
+        else:
+            acc.on_sample(*event[1:])
+    expected = _textbook_windows(events)
+    assert len(got) == len(expected) > 10
+    for window_got, window_expected in zip(got, expected, strict=True):
+        assert window_got.keys() == window_expected.keys()
+        for gid, (*counts, period, age) in window_got.items():
+            *want_counts, want_period, want_age = window_expected[gid]
+            assert counts == want_counts
+            for value, want in zip([*period, *age], [*want_period, *want_age], strict=True):
+                assert value == pytest.approx(want, rel=1e-9, abs=1e-3)
+    assert acc.total_delivered == sum(1 for e in events if e[0] == "sample")
+    assert acc.total_dropped == sum(w[gid][1] for w in expected for gid in w)

@@ -40,16 +40,16 @@ class Executor:
 
     def __init__(self, name: str, on_error: Callable[[str, BaseException], None]) -> None:
         self._queue: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
+        self.post: Callable[[Callable[[], None]], None] = self._queue.put
+        """Queue work for the thread (from any thread): the queue's own put, one call less for every sample."""
         self._on_error = on_error
         self._thread = threading.Thread(target=self._run, name=f"executor:{name}", daemon=True)
         self._thread.start()
 
-    def post(self, work: Callable[[], None]) -> None:
-        self._queue.put(work)
-
     def _run(self) -> None:
+        get = self._queue.get
         while True:
-            work = self._queue.get()
+            work = get()
             if work is None:
                 return
             try:

@@ -133,6 +133,8 @@ class Node:
             node_name=self.name,
         )
         self._executor = Executor(self.fq_name, self._on_executor_error)
+        self.executor_post = self._executor.post
+        """:meth:`call_soon` without its own call (the subscriptions' hand-off of every sample)."""
         self._entities: list[Entity] = []
         self._timers: list[Timer] = []
         self._subscriptions: list[Subscription] = []

@@ -5,7 +5,6 @@ from __future__ import annotations
 import itertools
 import logging
 import struct
-import threading
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -21,7 +20,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("fleetslam.middleware.node")
 
-_ATTACHMENT_GID = struct.Struct("<qqB16s")
+_pack_attachment = struct.Struct("<qqB16s").pack
+_time_ns = time.time_ns
 
 
 class Publisher(Entity):
@@ -58,7 +58,7 @@ class Publisher(Entity):
                 self.key, congestion_control=congestion, reliability=reliability
             )
         self._sequence = itertools.count(1)
-        self._lock = threading.Lock()
+        self._put = self._publisher.put
         self._declare_token()
 
     @property
@@ -86,14 +86,13 @@ class Publisher(Entity):
         """Publish already serialized CDR bytes (with header); the attachment gets the next sequence number."""
         if self._destroyed:
             raise MiddlewareError(f"publisher of {self.topic} was destroyed")
-        with self._lock:
-            seq = next(self._sequence)
-        stamp = time.time_ns() if source_timestamp_ns is None else source_timestamp_ns
+        seq = next(self._sequence)  # itertools.count is atomic (one C call under the GIL): no lock needed
+        stamp = _time_ns() if source_timestamp_ns is None else source_timestamp_ns
         try:
-            attachment = _ATTACHMENT_GID.pack(seq, stamp, 16, self.gid)  # encode_attachment's bytes, in one call
+            attachment = _pack_attachment(seq, stamp, 16, self.gid)  # encode_attachment's bytes, in one call
         except struct.error:
             attachment = encode_attachment(seq, stamp, self.gid)  # raises MessageError naming the value
-        self._publisher.put(payload, attachment=attachment)
+        self._put(payload, attachment=attachment)
 
     def _undeclare(self) -> None:
         try:

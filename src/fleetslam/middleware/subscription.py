@@ -20,7 +20,6 @@ from fleetslam.middleware.entity import Entity
 from fleetslam.middleware.lifetime import declare_with_callback
 from fleetslam.middleware.statistics import SubscriptionStatistics
 from fleetslam.middleware.wire import (
-    ATTACHMENT_SIZE,
     EntityKind,
     QoSProfile,
     decode_attachment,
@@ -56,7 +55,12 @@ class MessageInfo(NamedTuple):
     type_name: str
 
 
-_ATTACHMENT = struct.Struct("<qqB")
+_unpack_attachment = struct.Struct("<qqB16s").unpack
+"""The 33-byte attachment (sequence number, source timestamp, GID length 16, GID) in one call."""
+_new_info = tuple.__new__
+"""Makes a MessageInfo without the named tuple's Python-level ``__new__`` (a third of its cost)."""
+_time_ns = time.time_ns
+_deserialize = typesys.deserialize
 _COPY_ON_EXECUTOR_BYTES = 1 << 16
 """Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
 
@@ -117,6 +121,9 @@ class Subscription(Entity):
         self.max_payload_bytes = max_payload_bytes
         self.inline = inline
         self._with_info = _accepts_info(callback)
+        self._post = node.executor_post
+        self._dispatch_bound = self._dispatch
+        """Posted once per queued sample (one bound method for all of them, not one made per sample)."""
         self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
             maxlen=None if qos.history == "keep_all" else max(1, qos.depth)
         )
@@ -125,6 +132,7 @@ class Subscription(Entity):
         self.queue_overflows = 0
         """Samples dropped from the local queue because the executor fell behind (KEEP_LAST)."""
         self.statistics = SubscriptionStatistics(time.time_ns())
+        self._on_stats = self.statistics.on_sample
         self.publisher_types: dict[bytes, str] = {}
         session = node.context.session
         domain = node.context.domain_id
@@ -175,32 +183,32 @@ class Subscription(Entity):
 
     def _receive(self, sample: zenoh.Sample) -> None:
         # Hot path (every sample, on a Zenoh thread): checks, statistics and queueing only. Deserialization waits
-        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding.
-        received = time.time_ns()
-        errors = self.node.error_log
+        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding. Every line here
+        # costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's table of layers).
+        received = _time_ns()
         attachment = sample.attachment
         zpayload = sample.payload
         size = len(zpayload)
         if attachment is None:
-            self.statistics.on_error(None, size)
-            errors.warning(f"{self.topic}:noatt", "%s: dropped a sample without attachment", self.topic)
+            self._drop(None, size, "noatt", "%s: dropped a sample without attachment", self.topic)
             return
         raw_attachment = attachment.to_bytes()
-        if len(raw_attachment) == ATTACHMENT_SIZE and raw_attachment[16] == 16:
-            seq, stamp, _ = _ATTACHMENT.unpack_from(raw_attachment)
-            gid = raw_attachment[17:]
-        else:
+        try:
+            seq, stamp, gid_length, gid = _unpack_attachment(raw_attachment)  # the 33-byte form in one call
+        except struct.error:
+            gid_length = 0
+        if gid_length != 16:
             try:
                 decoded = decode_attachment(raw_attachment)  # also the labelled form of Jazzy ≤ 0.2.3
             except MessageError as err:
-                self.statistics.on_error(None, size)
-                errors.warning(f"{self.topic}:att", "%s: dropped a sample: %s", self.topic, err)
+                self._drop(None, size, "att", "%s: dropped a sample: %s", self.topic, err)
                 return
             seq, stamp, gid = decoded.sequence_number, decoded.source_timestamp_ns, decoded.gid
         if size > self.max_payload_bytes:
-            self.statistics.on_error(gid, size)
-            errors.warning(
-                f"{self.topic}:size",
+            self._drop(
+                gid,
+                size,
+                "size",
                 "%s: dropped a %d-byte sample over the %d-byte limit",
                 self.topic,
                 size,
@@ -212,15 +220,14 @@ class Subscription(Entity):
             try:
                 type_name = parse_topic_key(str(sample.key_expr))[2]
             except MessageError as err:
-                self.statistics.on_error(gid, size)
-                errors.warning(f"{self.topic}:key", "%s: dropped a sample: %s", self.topic, err)
+                self._drop(gid, size, "key", "%s: dropped a sample: %s", self.topic, err)
                 return
             types = self.publisher_types  # as bounded as the statistics: GIDs are forgeable
             if gid not in types and len(types) >= self.statistics.max_publishers:
                 del types[next(iter(types))]
             types[gid] = type_name
-        self.statistics.on_sample(gid, seq, stamp, received, size)
-        info = MessageInfo(stamp, received, seq, gid, size, self.topic, type_name)
+        self._on_stats(gid, seq, stamp, received, size)
+        info = _new_info(MessageInfo, (stamp, received, seq, gid, size, self.name, type_name))
         if self.inline:
             self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
             return
@@ -228,13 +235,19 @@ class Subscription(Entity):
         # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
         # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
         payload: bytes | zenoh.ZBytes = zpayload if size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
+        pending = self._pending
         with self._pending_lock:
-            full = len(self._pending) == self._pending.maxlen
-            self._pending.append((payload, info))  # drops the oldest when full; its post serves this one
+            full = len(pending) == pending.maxlen
+            pending.append((payload, info))  # drops the oldest when full; its post serves this one
             if full:
                 self.queue_overflows += 1
         if not full:
-            self.node.call_soon(self._dispatch)
+            self._post(self._dispatch_bound)
+
+    def _drop(self, gid: bytes | None, size: int, cause: str, message: str, *args: object) -> None:
+        """Count a sample dropped on arrival as an error of its publisher (if known) and log it, rate-limited."""
+        self.statistics.on_error(gid, size)
+        self.node.error_log.warning(f"{self.topic}:{cause}", message, *args)
 
     def _dispatch(self) -> None:
         with self._pending_lock:
@@ -249,7 +262,7 @@ class Subscription(Entity):
         message: Any = payload
         if not self.raw:
             try:
-                message = typesys.deserialize(payload, info.type_name)
+                message = _deserialize(payload, info.type_name)
             except MessageError as err:
                 self.statistics.on_malformed(info.publisher_gid)
                 self.node.error_log.warning(f"{self.topic}:cdr", "%s: dropped a malformed sample: %s", self.topic, err)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import struct
 import threading
 from collections.abc import Mapping
 from dataclasses import fields, is_dataclass
@@ -188,6 +189,16 @@ def serialize_buffer(msg: object, type_name: str) -> bytearray:
     The buffer is new and the caller's own; the publisher hands it to Zenoh as it is (saves a copy of the payload,
     22 µs per 1 MB).
     """
+    if type_name == _STRING:  # the fast path of the most common small message; anything unusual goes on below
+        text = getattr(msg, "data", None)
+        if type(text) is str:  # what rosbags reads of the message, whatever its class
+            encoded = text.encode()
+            if b"\0" not in encoded:  # rosbags writes such a string too; leave the odd case to it
+                length = len(encoded) + 1
+                fast = bytearray(8 + length)
+                _STRING_PREFIX.pack_into(fast, 0, 0x100, length)
+                fast[8 : 7 + length] = encoded
+                return fast
     store = get_typestore()
     if type_name not in store.fielddefs:
         get_type(type_name)
@@ -209,6 +220,10 @@ def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
     which NumPy and OpenCV handle. A ``bytearray`` or ``memoryview`` is copied first (it may be a borrowed or
     mutable buffer), so the message never aliases memory its caller may change.
     """
+    if type(data) is bytes and type_name == _STRING:
+        message = _string_le(data)
+        if message is not None:
+            return message
     decoder = _decoders.get(type_name) or _decoder(type_name)
     if type(data) is bytes:
         raw = data
@@ -231,6 +246,30 @@ def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
     if end + 4 + 3 < size:  # as rosbags: at most 3 bytes of padding after the last field
         raise MessageError(f"type {type_name}: malformed CDR payload of {size} bytes: {size - end - 4} bytes too many")
     return message
+
+
+_STRING = "std_msgs/msg/String"
+_STRING_PREFIX = struct.Struct("<II")
+"""CDR header (00 01 00 00, read as a little-endian uint32) and the string's length with its terminator."""
+
+
+def _string_le(raw: bytes) -> Any:
+    """std_msgs/msg/String from little-endian CDR as rosbags decodes it (0.3 instead of 1.2 µs), or None for
+    anything else (big-endian, malformed, a stray terminator), which the general decoder then handles or rejects
+    with its own error."""
+    size = len(raw)
+    if size < 9:
+        return None
+    header, length = _STRING_PREFIX.unpack_from(raw)
+    end = 8 + length
+    # rosbags' checks: a terminator counted in the length and present, at most 3 bytes of padding after it.
+    if header != 0x100 or length < 1 or end > size or end + 3 < size or raw[end - 1] != 0:
+        return None
+    try:
+        text = raw[8 : end - 1].decode()
+    except UnicodeDecodeError:
+        return None
+    return (_decoders.get(_STRING) or _decoder(_STRING))[2](text)  # the class, as the general decoder's
 
 
 _decoders: dict[str, tuple[Any, Any, Any, Typestore]] = {}

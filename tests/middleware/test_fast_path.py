@@ -1,0 +1,124 @@
+"""The 64-byte fast path: std_msgs/String's own CDR coder gives rosbags' bytes, messages and errors, and publishers
+number their samples without a lock (one atomic counter) when several threads publish at once."""
+
+import random
+import struct
+import threading
+import time
+from collections.abc import Callable
+
+import pytest
+import zenoh
+
+from fleetslam.errors import MessageError
+from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
+from fleetslam.msg.typesys import deserialize, get_type, get_typestore, serialize, serialize_buffer
+
+from ..support import wait_until
+
+STRING = "std_msgs/msg/String"
+TEXTS = ["", "a", "ab", "abc", "abcd", "x" * 56, "é", "中文", "\U0001f600 robot", "nul\0inside", "\0"]
+
+
+def decode(data: bytes | bytearray) -> tuple[str, object]:
+    """What deserialize makes of data: ("ok", message) or ("error", its message)."""
+    try:
+        return "ok", deserialize(data, STRING)
+    except MessageError as err:
+        return "error", str(err)
+
+
+@pytest.mark.parametrize("text", TEXTS)
+def test_string_fast_path_writes_and_reads_what_rosbags_does(text: str) -> None:
+    store = get_typestore()
+    msg = get_type(STRING)(data=text)
+    reference = bytes(store.serialize_cdr(msg, STRING))
+    buffer = serialize_buffer(msg, STRING)
+    assert isinstance(buffer, bytearray) and bytes(buffer) == reference
+    assert deserialize(reference, STRING) == store.deserialize_cdr(reference, STRING) == msg
+    for padding in range(6):  # CDR allows up to 3 bytes of padding after the last field, no more
+        padded = reference + b"\0" * padding
+        assert decode(padded) == decode(bytearray(padded))  # a bytearray takes the general decoder
+
+
+def test_string_fast_path_rejects_what_the_general_decoder_rejects() -> None:
+    reference = serialize(get_type(STRING)(data="héllo wörld"), STRING)
+    rng = random.Random(7)
+    accepted = rejected = 0
+    for _ in range(5000):
+        data = bytearray(reference)
+        for _ in range(rng.randrange(1, 4)):
+            edit = rng.randrange(3)
+            if edit == 0 and data:
+                data[rng.randrange(len(data))] = rng.randrange(256)
+            elif edit == 1:
+                del data[rng.randrange(len(data) + 1) :]
+            else:
+                data += bytes([rng.randrange(256)]) * rng.randrange(1, 5)
+        fast, general = decode(bytes(data)), decode(data)
+        assert fast == general, bytes(data)
+        accepted += fast[0] == "ok"
+        rejected += fast[0] == "error"
+    assert accepted > 100 and rejected > 100  # both outcomes were exercised
+
+
+def test_string_fast_path_keeps_rosbags_errors_for_a_wrong_field() -> None:
+    with pytest.raises(MessageError, match="cannot serialize"):
+        serialize_buffer(get_type(STRING)(data=7), STRING)
+
+
+def test_publishers_number_samples_uniquely_from_many_threads(
+    make_context: Callable[..., Context], raw_session: zenoh.Session
+) -> None:
+    node = Node("talker", context=make_context("c3po"), statistics_period_s=0)
+    publisher = node.create_publisher(STRING, "chatter", QoSProfile(history="keep_all"))
+    sequence_numbers: list[int] = []
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        seq = struct.unpack_from("<q", sample.attachment.to_bytes())[0]  # type: ignore[union-attr]
+        with lock:
+            sequence_numbers.append(seq)
+
+    subscriber = raw_session.declare_subscriber(publisher.key, on_sample)
+    time.sleep(0.5)
+    threads, each = 4, 500
+    workers = [
+        threading.Thread(target=lambda: [publisher.publish(get_type(STRING)(data="x")) for _ in range(each)])
+        for _ in range(threads)
+    ]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    assert wait_until(lambda: len(sequence_numbers) == threads * each, 20.0), len(sequence_numbers)
+    assert sorted(sequence_numbers) == list(range(1, threads * each + 1))
+    subscriber.undeclare()
+
+
+@pytest.mark.parametrize("inline", [False, True])
+def test_strings_arrive_decoded_with_their_info(make_context: Callable[..., Context], inline: bool) -> None:
+    talker = Node("talker", context=make_context("c3po"), statistics_period_s=0)
+    listener = Node("listener", context=make_context("c3po"), statistics_period_s=0)
+    publisher = talker.create_publisher(STRING, "chatter", QoSProfile(history="keep_all"))
+    got: list[tuple[str, MessageInfo]] = []
+    sub = listener.create_subscription(
+        STRING,
+        "chatter",
+        lambda m, info: got.append((m.data, info)),
+        QoSProfile(history="keep_all"),
+        inline=inline,
+    )
+    assert wait_until(lambda: publisher.matched_subscriptions == 1, 10.0)
+    time.sleep(0.3)
+    for text in TEXTS:
+        publisher.publish(get_type(STRING)(data=text))
+    assert wait_until(lambda: len(got) == len(TEXTS), 10.0)
+    assert [text for text, _ in got] == TEXTS
+    infos = [info for _, info in got]
+    assert [i.sequence_number for i in infos] == list(range(1, len(TEXTS) + 1))
+    assert all(i.publisher_gid == publisher.gid and i.topic == "/c3po/chatter" for i in infos)
+    assert all(i.type_name == STRING and i.received_timestamp_ns >= i.source_timestamp_ns for i in infos)
+    assert [i.size for i in infos] == [len(serialize(get_type(STRING)(data=t), STRING)) for t in TEXTS]
+    assert isinstance(infos[0], MessageInfo) and infos[0]._fields[0] == "source_timestamp_ns"
+    assert sub.statistics.total_delivered == len(TEXTS) and sub.statistics.total_dropped == 0
