@@ -15,7 +15,7 @@ from fleetslam.geometry import invert, pose_from_quat, pose_from_xyz_rpy
 from fleetslam.middleware import Context, Node
 from fleetslam.msg.conversions import odometry_msg, pose_msg, transform_msg
 from fleetslam.station.bridge import LEVEL_CAMERA, StationBridge, robot_pose
-from fleetslam.topics import FLEET_TRANSFORM, SLAM_ODOM, TF_STATIC
+from fleetslam.topics import FLEET_PLACEMENTS, FLEET_TRANSFORM, SLAM_ODOM, TF_STATIC
 
 from ..support import wait_until
 
@@ -82,3 +82,43 @@ def test_without_a_known_mounting_the_robot_is_a_level_camera_looking_ahead() ->
     pose = robot_pose(base @ LEVEL_CAMERA, None)
     assert pose["yaw"] == pytest.approx(0.7)
     np.testing.assert_allclose(pose_from_quat([pose["x"], pose["y"], pose["z"]], pose["q"]), base, atol=1e-12)
+
+
+def test_the_back_ends_placement_wins_over_the_agents_own(make_context: Callable[..., Context]) -> None:
+    """The fleet map lands an agent by the joint optimisation's ``/fleet/placements``: the console draws the agent's
+    frame by it too (else by the agent's own ``slam/fleet_transform``), also for an agent it finds later."""
+    sent: list[dict[str, Any]] = []
+    lock = threading.Lock()
+
+    def emit(message: dict[str, Any], agent: str | None) -> None:
+        with lock:
+            sent.append(message)
+
+    def latest_frame() -> dict[str, Any] | None:
+        with lock:
+            frames = [m for m in sent if m["type"] == "frame" and m.get("agent") == "r2d2"]
+        return frames[-1] if frames else None
+
+    own, joint = pose_from_xyz_rpy(3.0, -1.0, 0.0, 0, 0, 0.4), pose_from_xyz_rpy(3.02, -1.01, 0.0, 0, 0, 0.405)
+    backend = Node("fleet_backend", context=make_context("/"))
+    placements = backend.create_publisher(FLEET_PLACEMENTS.type, FLEET_PLACEMENTS.name, FLEET_PLACEMENTS.qos())
+    message = transform_msg(joint, "fleet", "r2d2/map", 1)
+    forged = transform_msg(pose_from_xyz_rpy(9, 9, 9, 0, 0, 0), "fleet", "fleet/map", 1).transforms[0]
+    message.transforms.append(forged)  # the fleet itself is not an agent
+    placements.publish(message)  # before the agent is known: kept until it is
+    bridge = StationBridge(make_context(), emit)
+    robot = Node("slam", context=make_context("/r2d2"))
+    try:
+        assert wait_until(lambda: placements.matched_subscriptions > 0, 10.0)
+        own_placement = robot.create_publisher(FLEET_TRANSFORM.type, FLEET_TRANSFORM.name, FLEET_TRANSFORM.qos())
+        own_placement.publish(transform_msg(own, "fleet", "r2d2/map", 2).transforms[0])
+        robot.create_publisher("nav_msgs/msg/Odometry", "odom")  # what makes the console find an agent
+        assert wait_until(lambda: "r2d2" in bridge.agents and bridge.agents["r2d2"].own_placement is not None, 10.0)
+        frame = latest_frame()
+        assert frame is not None
+        np.testing.assert_allclose(_matrix(frame["placement"]), joint, atol=1e-12)
+        assert "fleet" not in bridge.agents or bridge.agents["fleet"].placement is None
+    finally:
+        bridge.close()
+        robot.destroy()
+        backend.destroy()

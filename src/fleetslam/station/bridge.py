@@ -57,8 +57,17 @@ class AgentView:
     last_pose: dict[str, float] = field(default_factory=dict)
     """When each pose source was last sent to the browsers (monotonic s)."""
     image_seq: int = 0
-    placement: list[float] | None = None
-    """``T_fleet_map`` (row-major), once the agent's SLAM placed its map frame in the fleet frame."""
+    own_placement: list[float] | None = None
+    """``T_fleet_map`` (row-major) as the agent's SLAM placed its map frame (``slam/fleet_transform``)."""
+    fleet_placement: list[float] | None = None
+    """``T_fleet_map`` (row-major) from the fleet back-end's joint optimisation (``/fleet/placements``)."""
+
+    @property
+    def placement(self) -> list[float] | None:
+        """Where the agent's map frame is drawn: the back-end's placement, which the fleet map uses too, else the
+        agent's own, else None (not merged yet)."""
+        return self.fleet_placement if self.fleet_placement is not None else self.own_placement
+
     mounting: list[float] | None = None
     """``T_base_camera`` (row-major) from the agent's ``tf_static``: which way is up in its map frame."""
 
@@ -97,6 +106,11 @@ class StationBridge:
         statistics = topics.STATISTICS
         self.node.create_subscription(statistics.type, statistics.name, self._on_statistics, statistics.qos(depth=1000))
         self._add_agent(FLEET_AGENT, fleet=True)
+        self._fleet_placements: dict[str, list[float]] = {}
+        """The back-end's latest placement per agent, also of agents not discovered yet."""
+        placements = topics.FLEET_PLACEMENTS
+        self.node.create_subscription(placements.type, placements.name, self._on_fleet_placements,
+                                      placements.qos(depth=1))  # fmt: skip
         self.node.create_timer(1.0, self._discover)
         self.node.create_timer(1.0, self._send_stats)
         self.node.call_soon(self._discover)
@@ -127,9 +141,13 @@ class StationBridge:
         sub(cloud.type, cloud.of(name), lambda m: self._on_cloud(view, m), cloud.qos(depth=1))
         if fleet:
             return
+        view.fleet_placement = self._fleet_placements.get(name)
         self.findings.watch(name)
-        for source, odom in (("odom", topics.ODOM), ("slam", topics.SLAM_ODOM), ("truth", topics.GROUND_TRUTH_ODOM)):
-            sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=1))
+        # SLAM's poses are all kept (depth 20): a finding picked on a frame needs the poses around it, and a busy
+        # station dropped them with depth 1 (the pick then failed as "not tracked"); 50 Hz odometry stays at 1.
+        for source, odom, depth in (("odom", topics.ODOM, 1), ("slam", topics.SLAM_ODOM, 20),
+                                    ("truth", topics.GROUND_TRUTH_ODOM, 1)):  # fmt: skip
+            sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=depth))
         # The keyframe poses come with the path (the same poses): the whole graph, constraints and all, grows to
         # hundreds of kB and would cost the station that much every second for nothing it shows.
         path = topics.PATH
@@ -240,8 +258,24 @@ class StationBridge:
         """``fleet → <agent>/map``: the page draws the agent's map, path and marker through it."""
         matrix = _finite_matrix(view.name, "fleet transform", msg.transform)
         if matrix is not None:
-            view.placement = matrix
+            view.own_placement = matrix
             self.emit(frame_message(view), None)
+
+    def _on_fleet_placements(self, msg: Any) -> None:
+        """The back-end's ``fleet → <agent>/map`` of every agent it placed: preferred over the agents' own."""
+        for transform in msg.transforms:
+            agent, _, frame = transform.child_frame_id.strip("/").rpartition("/")
+            if frame != "map" or not agent or agent == FLEET_AGENT:
+                continue
+            matrix = _finite_matrix(agent, "fleet placement", transform.transform)
+            if matrix is None:
+                continue
+            if len(self._fleet_placements) < 1024 or agent in self._fleet_placements:  # forged names: bounded
+                self._fleet_placements[agent] = matrix
+            view = self.agents.get(agent)
+            if view is not None and view.fleet_placement != matrix:
+                view.fleet_placement = matrix
+                self.emit(frame_message(view), None)
 
     def _on_mounting(self, view: AgentView, msg: Any) -> None:
         """``base_link → *optical_frame``: the agent's map frame is its camera's at start, upright through this."""
