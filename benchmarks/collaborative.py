@@ -77,6 +77,7 @@ import numpy as np
 from fleetslam.datasets import open_source
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.eval import ape, fleet_ape
+from fleetslam.fusion.alignment import rigid_fit
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields
@@ -267,6 +268,8 @@ class Agent:
     recognition_ms: list[float] = field(default_factory=list)
     aligned_at: dict[str, float] = field(default_factory=dict)
     """Peer -> when this agent first accepted an alignment with it (simulated s)."""
+    alignments: dict[str, list[tuple[float, Pose | None]]] = field(default_factory=dict)
+    """Peer -> (when, ``T_ownmap_peermap`` accepted or None) each time it changed."""
     believed: dict[tuple[str, int, int], Pose] = field(default_factory=dict)
     """(peer, own keyframe, peer keyframe) -> ``T_owncamera_peercamera`` of every closure that was in an accepted
     consistent set at some point."""
@@ -322,7 +325,9 @@ def step_agent(agent: Agent, frame: RGBDFrame, fleet: Sequence[Agent], *, everyt
             agent.constraints.append(InterAgent(match, agent.linker.peer(match.peer_agent).epoch))
             agent.graph_changed = True
         for peer_name, state in agent.linker.peers.items():
-            if state.decision is None or state.decision.alignment is None:
+            alignment = None if state.decision is None else state.decision.alignment
+            remember(agent.alignments.setdefault(peer_name, []), frame.stamp, alignment)
+            if alignment is None or state.decision is None:
                 continue
             agent.aligned_at.setdefault(peer_name, frame.stamp)
             for i in state.decision.inliers:
@@ -330,6 +335,18 @@ def step_agent(agent: Agent, frame: RGBDFrame, fleet: Sequence[Agent], *, everyt
                 agent.believed.setdefault((peer_name, c.own_id, c.peer_id), c.relative)
     if agent.graph_changed and (step.loop_closed or frame.stamp - agent.graph_sent_at >= NODE.graph_period):
         send_graph(agent, frame.stamp, peers)
+
+
+def remember(history: list[tuple[float, Pose | None]], stamp: float, pose: Pose | None) -> None:
+    """Append ``pose`` when it differs from the last one remembered (by 1 cm or 0.5°, or being None or not)."""
+    last = history[-1][1] if history else None
+    if (last is None) != (pose is None) or (last is not None and pose is not None and moved(last, pose, 0.01, 0.5)):
+        history.append((stamp, None if pose is None else np.array(pose)))
+
+
+def moved(a: Pose, b: Pose, metres: float, degrees: float) -> bool:
+    difference = invert(a) @ b
+    return bool(np.linalg.norm(difference[:3, 3]) > metres or math.degrees(rotation_angle(difference)) > degrees)
 
 
 def send_graph(agent: Agent, stamp: float, peers: Sequence[Agent]) -> None:
@@ -366,7 +383,9 @@ class FleetBackend(Protocol):
 
     def placed_at(self, agent: str) -> float | None: ...
 
-    def placement(self, agent: str) -> Pose | None: ...
+    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
+        """(when, ``T_fleet_map``) each time the agent's placement changed."""
+        ...
 
     def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]: ...
 
@@ -379,6 +398,7 @@ class LinkerPlacement:
         self.reference = reference
         self.placements: dict[str, Pose] = {}
         self.first_placed: dict[str, float] = {}
+        self.histories: dict[str, list[tuple[float, Pose | None]]] = {}
 
     def observe(self, fleet: Sequence[Agent], stamp: float) -> None:
         for agent in fleet:
@@ -388,6 +408,7 @@ class LinkerPlacement:
             if transform is None:
                 continue
             self.placements[agent.name] = transform
+            remember(self.histories.setdefault(agent.name, []), stamp, transform)
             if agent.name not in self.first_placed:
                 self.first_placed[agent.name] = stamp
                 if agent.name != self.reference:
@@ -396,8 +417,8 @@ class LinkerPlacement:
     def placed_at(self, agent: str) -> float | None:
         return self.first_placed.get(agent)
 
-    def placement(self, agent: str) -> Pose | None:
-        return self.placements.get(agent)
+    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
+        return self.histories.get(agent, [])
 
     def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]:
         out = {}
@@ -474,6 +495,33 @@ def within(error: tuple[float, float], metres: float, degrees: float) -> bool:
     return error[0] <= metres and error[1] <= degrees
 
 
+def true_map_frame(agent: Agent, gt: NearestPose) -> Pose:
+    """``T_world_map``: the agent's final trajectory rigidly fitted to its ground truth."""
+    trajectory = agent.pipeline.result().trajectory
+    pairs = [(p[:3, 3], w[:3, 3]) for t, p in zip(trajectory.stamps, trajectory.poses, strict=True)
+             if (w := gt(float(t))) is not None]  # fmt: skip
+    return rigid_fit(np.array([a for a, _ in pairs]), np.array([b for _, b in pairs]))
+
+
+def history_errors(history: Sequence[tuple[float, Pose | None]], truth: Pose, end: float) -> dict[str, Any]:
+    """How far a placement or alignment was from ``truth`` over the run: the largest and the last error, and the
+    time it was false (beyond ``FALSE_*``)."""
+    worst, last, false_s = (0.0, 0.0), None, 0.0
+    for k, (stamp, pose) in enumerate(history):
+        if pose is None:
+            continue
+        difference = invert(truth) @ pose
+        last = (float(np.linalg.norm(difference[:3, 3])), math.degrees(rotation_angle(difference)))
+        worst = (max(worst[0], last[0]), max(worst[1], last[1]))
+        if not within(last, FALSE_M, FALSE_DEG):
+            false_s += (history[k + 1][0] if k + 1 < len(history) else end) - stamp
+    return {
+        "error_final_m": None if last is None else round(last[0], 3),
+        "error_final_deg": None if last is None else round(last[1], 2),
+        "error_max_m": round(worst[0], 3), "error_max_deg": round(worst[1], 2), "false_s": round(false_s, 1),
+    }  # fmt: skip
+
+
 def own_ate(agent: Agent) -> float:
     return round(ape(agent.source.groundtruth(), agent.pipeline.result().trajectory).rmse, 4)
 
@@ -492,6 +540,8 @@ def run_configuration(
     gts = {a.name: a.source.groundtruth() for a in fleet}
     nearest = {name: NearestPose(gt, 0.02) for name, gt in gts.items()}
     overlaps = first_overlaps(gts)
+    world_map = {a.name: true_map_frame(a, nearest[a.name]) for a in fleet}
+    end = max(a.last_stamp for a in fleet)
 
     record: dict[str, Any] = {
         "agents": len(fleet),
@@ -532,6 +582,9 @@ def run_configuration(
             "merge_after_overlap_s": (
                 None if placed is None or overlap is None or agent.name == reference else round(placed - overlap, 1)
             ),
+            "placement": history_errors(
+                backend.history(agent.name), invert(world_map[reference]) @ world_map[agent.name], end
+            ),
             "own_ate_alone_m": alone.get(agent.name), "own_ate_collaborating_m": own_ate(agent),
             "summary_bytes_mean": round(float(np.mean(agent.summary_sizes))),
             "summary_bytes_max": int(np.max(agent.summary_sizes)),
@@ -553,8 +606,15 @@ def run_configuration(
         sides = [x for x in fleet if x.name in (a, b)]
         when = min((x.aligned_at[y.name] for x, y in itertools.permutations(sides, 2) if y.name in x.aligned_at),
                    default=None)  # fmt: skip
+        alignment_errors = [
+            history_errors(x.alignments.get(y.name, []), invert(world_map[x.name]) @ world_map[y.name], end)
+            for x, y in itertools.permutations(sides, 2)
+        ]
         pairs[f"{a}-{b}"] = {
             "first_overlap_s": round(overlap_at, 1),
+            "alignment_error_final_m": max((e["error_final_m"] or 0.0 for e in alignment_errors), default=None),
+            "alignment_error_max_m": max(e["error_max_m"] for e in alignment_errors),
+            "false_alignment_s": max(e["false_s"] for e in alignment_errors),
             "aligned_at_s": None if when is None else round(when, 1),
             "aligned_after_overlap_s": None if when is None else round(when - overlap_at, 1),
         }
@@ -589,12 +649,14 @@ def run_configuration(
     record["everything_over_summaries"] = round(
         record["everything_bytes_per_keyframe_mean"] / record["bytes_per_keyframe_mean"], 1
     )
+    record["misplaced_s"] = {name: v["placement"]["false_s"] for name, v in per_agent.items()}
     record["targets"] = {
         "fleet_ate_le_5cm": bool(record["all_placed"] and record.get("fleet_ate_m", math.inf) <= FLEET_ATE_TARGET_M),
         "bytes_per_keyframe_le_20kB": record["bytes_per_keyframe_max"] <= KEYFRAME_BYTES_TARGET,
         "mb_per_s_per_agent_le_0.1": record["wire_mb_per_s_max"] * 1e6 <= RATE_TARGET_BYTES_PER_S,
         "all_believed_closures_correct": record["closures_believed_correct"] == record["closures_believed"],
         "no_false_closure_believed": record["closures_believed_false"] == 0,
+        "never_misplaced": not any(record["misplaced_s"].values()),
     }
     record["targets_met"] = all(record["targets"].values())
     plot(fleet, trajectories, gts, alignment, believed, Path(args.out) / f"collaborative_{len(fleet)}agents.png")
