@@ -40,9 +40,13 @@ Figures per configuration:
   with one SE(3) (COVINS; :func:`fleetslam.eval.fleet_ape`); an unplaced agent is left out and says so;
 - each agent's own ATE (own SE(3) alignment) with collaboration, and alone: the peer run, the same agent's pipeline
   with no linker (run once per agent and shared by the configurations);
-- inter-agent closures against the ground truth (correct within 10 cm and 2°): those verified (each agent's own
-  PnP-verified matches) and those believed (in an accepted consistent set at any time, shared ones included),
-  counted and their precision;
+- placements and alignments against the truth (each map frame where its agent's final trajectory fits the ground
+  truth): the error each ended with, the largest, and the time an agent was misplaced (> 0.3 m or 5°) in the fleet
+  frame or a pair's accepted alignment was false;
+- inter-agent closures against the ground truth (correct within 10 cm and 2°; false beyond 0.3 m or 5°, a wrong
+  place rather than an imprecise right one): those verified (each agent's own PnP-verified matches) and those
+  believed (in an accepted consistent set at any time, shared ones included, each pair of keyframes once),
+  counted, their precision, and the worst believed with the shift they imply in the world;
 - bytes per keyframe (summary; mean, max; target ≤ 20 kB) and MB/s per agent (summaries + graph deltas over the
   agent's simulated time; target ≤ 0.1 MB/s);
 - the "send everything" peer: the full ``Keyframe`` message as the SLAM node builds it (JPEG colour, PNG depth,
@@ -52,7 +56,9 @@ Figures per configuration:
 fleet frame by the fleet-ATE alignment) and the verified closures (believed and correct green, believed and wrong
 red, not believed grey).
 
-Progress on stderr; the JSON line on stdout holds every configuration and whether each target was met.
+Progress on stderr; the JSON line on stdout holds every configuration, whether each target was met, and the wall
+and CPU time (the configurations run one after the other on one core: the CPU time is the wall time of an idle
+machine).
 
 Usage: python benchmarks/collaborative.py [--agents 2,3,4] [--scene procedural] [--resolution 320x240]
            [--rate 10] [--out results/benchmarks]
@@ -70,7 +76,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -472,14 +478,23 @@ def first_overlaps(gts: Mapping[str, Trajectory]) -> dict[tuple[str, str], float
     return out
 
 
+class ClosureError(NamedTuple):
+    metres: float
+    degrees: float
+    world_shift: tuple[float, ...]
+    """Where the closure puts the peer's camera minus where it was (world frame, m): a shift along a wall or floor
+    by the period of its texture is repeated structure."""
+
+
 def closure_error(gt_own: NearestPose, gt_peer: NearestPose, stamp_own: float, stamp_peer: float,
-                  relative: Pose) -> tuple[float, float] | None:  # fmt: skip
-    """(m, degrees) between ``T_owncamera_peercamera`` and the truth (None: no ground truth there)."""
+                  relative: Pose) -> ClosureError | None:  # fmt: skip
+    """How far ``T_owncamera_peercamera`` is from the truth (None: no ground truth there)."""
     w_own, w_peer = gt_own(stamp_own), gt_peer(stamp_peer)
     if w_own is None or w_peer is None:
         return None
     error = invert(invert(w_own) @ w_peer) @ relative
-    return float(np.linalg.norm(error[:3, 3])), math.degrees(rotation_angle(error))
+    shift = tuple(round(float(v), 3) for v in (w_own @ relative)[:3, 3] - w_peer[:3, 3])
+    return ClosureError(float(np.linalg.norm(error[:3, 3])), math.degrees(rotation_angle(error)), shift)
 
 
 ClosureKey = tuple[tuple[str, int], tuple[str, int]]
@@ -491,7 +506,7 @@ def closure_key(agent: str, own_id: int, peer: str, peer_id: int) -> ClosureKey:
     return first, second
 
 
-def within(error: tuple[float, float], metres: float, degrees: float) -> bool:
+def within(error: tuple[Any, ...], metres: float, degrees: float) -> bool:
     return error[0] <= metres and error[1] <= degrees
 
 
@@ -504,22 +519,25 @@ def true_map_frame(agent: Agent, gt: NearestPose) -> Pose:
 
 
 def history_errors(history: Sequence[tuple[float, Pose | None]], truth: Pose, end: float) -> dict[str, Any]:
-    """How far a placement or alignment was from ``truth`` over the run: the largest and the last error, and the
-    time it was false (beyond ``FALSE_*``)."""
-    worst, last, false_s = (0.0, 0.0), None, 0.0
+    """How far a placement or alignment was from ``truth`` over the run: the largest error, the one it ended with
+    (None: never held, or withdrawn at the end) and the time it was false (beyond ``FALSE_*``)."""
+    errors: list[tuple[float, float]] = []
+    false_s = 0.0
     for k, (stamp, pose) in enumerate(history):
         if pose is None:
             continue
         difference = invert(truth) @ pose
-        last = (float(np.linalg.norm(difference[:3, 3])), math.degrees(rotation_angle(difference)))
-        worst = (max(worst[0], last[0]), max(worst[1], last[1]))
-        if not within(last, FALSE_M, FALSE_DEG):
+        errors.append((float(np.linalg.norm(difference[:3, 3])), math.degrees(rotation_angle(difference))))
+        if not within(errors[-1], FALSE_M, FALSE_DEG):
             false_s += (history[k + 1][0] if k + 1 < len(history) else end) - stamp
+    final = errors[-1] if history and history[-1][1] is not None else None
     return {
-        "error_final_m": None if last is None else round(last[0], 3),
-        "error_final_deg": None if last is None else round(last[1], 2),
-        "error_max_m": round(worst[0], 3), "error_max_deg": round(worst[1], 2), "false_s": round(false_s, 1),
-    }  # fmt: skip
+        "error_final_m": None if final is None else round(final[0], 3),
+        "error_final_deg": None if final is None else round(final[1], 2),
+        "error_max_m": round(max(e[0] for e in errors), 3) if errors else None,
+        "error_max_deg": round(max(e[1] for e in errors), 2) if errors else None,
+        "false_s": round(false_s, 1),
+    }
 
 
 def own_ate(agent: Agent) -> float:
@@ -551,8 +569,8 @@ def run_configuration(
         "cpu_s": round(cpu, 1),
     }
     per_agent: dict[str, Any] = {}
-    verified: list[tuple[float, float]] = []
-    believed: dict[ClosureKey, tuple[float, float] | None] = {}
+    verified: list[ClosureError] = []
+    believed: dict[ClosureKey, ClosureError | None] = {}
     """Each closure once (both agents may hold it), keyed by its two keyframes, with its error."""
     stamps = {a.name: a.keyframe_stamps for a in fleet}
     for agent in fleet:
@@ -612,8 +630,12 @@ def run_configuration(
         ]
         pairs[f"{a}-{b}"] = {
             "first_overlap_s": round(overlap_at, 1),
-            "alignment_error_final_m": max((e["error_final_m"] or 0.0 for e in alignment_errors), default=None),
-            "alignment_error_max_m": max(e["error_max_m"] for e in alignment_errors),
+            "alignment_error_final_m": max(
+                (e["error_final_m"] for e in alignment_errors if e["error_final_m"] is not None), default=None
+            ),
+            "alignment_error_max_m": max(
+                (e["error_max_m"] for e in alignment_errors if e["error_max_m"] is not None), default=None
+            ),
             "false_alignment_s": max(e["false_s"] for e in alignment_errors),
             "aligned_at_s": None if when is None else round(when, 1),
             "aligned_after_overlap_s": None if when is None else round(when - overlap_at, 1),
@@ -637,7 +659,12 @@ def run_configuration(
         record[f"closures_{kind}_false"] = sum(not within(e, FALSE_M, FALSE_DEG) for e in found)
     worst = sorted(((e, k) for k, e in believed.items() if e is not None), reverse=True)[:5]
     record["believed_worst"] = [
-        {"closure": f"{a}:{i}-{b}:{j}", "error_m": round(e[0], 3), "error_deg": round(e[1], 2)}
+        {
+            "closure": f"{a}:{i}-{b}:{j}",
+            "error_m": round(e.metres, 3),
+            "error_deg": round(e.degrees, 2),
+            "world_shift_m": e.world_shift,
+        }
         for e, ((a, i), (b, j)) in worst
     ]
     summaries = [s for a in fleet for s in a.summary_sizes]
@@ -665,7 +692,7 @@ def run_configuration(
 
 def plot(
     fleet: Sequence[Agent], trajectories: Mapping[str, Trajectory], gts: Mapping[str, Trajectory],
-    world_fleet: Pose | None, believed: Mapping[ClosureKey, tuple[float, float] | None], path: Path,
+    world_fleet: Pose | None, believed: Mapping[ClosureKey, ClosureError | None], path: Path,
 ) -> None:  # fmt: skip
     import matplotlib
 
