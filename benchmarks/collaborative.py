@@ -33,8 +33,9 @@ joint optimiser plugs in).
 
 Figures per configuration:
 
-- time to first merge: per agent, when it was placed in the fleet frame, minus its first overlap; per pair, when
-  either side accepted the alignment, minus the pair's first overlap (simulated seconds);
+- time to first merge: per agent, when it was placed in the fleet frame, minus its first overlap (and when it was
+  first placed right, within 0.3 m and 5°, minus the same); per pair, when either side accepted the alignment,
+  minus the pair's first overlap (simulated seconds);
 - **fleet ATE** (target ≤ 5 cm): every placed agent's whole trajectory (all frames, after its final optimisation),
   placed by its final ``T_fleet_map``, associated with its own ground truth, concatenated and aligned to the truth
   with one SE(3) (COVINS; :func:`fleetslam.eval.fleet_ape`); an unplaced agent is left out and says so;
@@ -520,9 +521,10 @@ def true_map_frame(agent: Agent, gt: NearestPose) -> Pose:
 
 def history_errors(history: Sequence[tuple[float, Pose | None]], truth: Pose, end: float) -> dict[str, Any]:
     """How far a placement or alignment was from ``truth`` over the run: the largest error, the one it ended with
-    (None: never held, or withdrawn at the end) and the time it was false (beyond ``FALSE_*``)."""
+    (None: never held, or withdrawn at the end), the time it was false (beyond ``FALSE_*``) and when it was first
+    right (within them)."""
     errors: list[tuple[float, float]] = []
-    false_s = 0.0
+    false_s, first_right = 0.0, None
     for k, (stamp, pose) in enumerate(history):
         if pose is None:
             continue
@@ -530,6 +532,8 @@ def history_errors(history: Sequence[tuple[float, Pose | None]], truth: Pose, en
         errors.append((float(np.linalg.norm(difference[:3, 3])), math.degrees(rotation_angle(difference))))
         if not within(errors[-1], FALSE_M, FALSE_DEG):
             false_s += (history[k + 1][0] if k + 1 < len(history) else end) - stamp
+        elif first_right is None:
+            first_right = stamp
     final = errors[-1] if history and history[-1][1] is not None else None
     return {
         "error_final_m": None if final is None else round(final[0], 3),
@@ -537,6 +541,7 @@ def history_errors(history: Sequence[tuple[float, Pose | None]], truth: Pose, en
         "error_max_m": round(max(e[0] for e in errors), 3) if errors else None,
         "error_max_deg": round(max(e[1] for e in errors), 2) if errors else None,
         "false_s": round(false_s, 1),
+        "first_right_s": None if first_right is None else round(first_right, 1),
     }
 
 
@@ -592,6 +597,10 @@ def run_configuration(
                     nearest[agent.name], nearest[peer], agent.keyframe_stamps[own_id], stamps[peer][peer_id], relative
                 )
         wire = sum(agent.summary_sizes) + sum(agent.delta_sizes)
+        placement = history_errors(
+            backend.history(agent.name), invert(world_map[reference]) @ world_map[agent.name], end
+        )
+        right = placement["first_right_s"]
         per_agent[agent.name] = {
             "route": agent.plan.route, "start": [agent.plan.x, agent.plan.y, round(agent.plan.yaw, 3)],
             "frames": len(agent.pipeline.result().trajectory), "keyframes": len(agent.summary_sizes),
@@ -600,9 +609,10 @@ def run_configuration(
             "merge_after_overlap_s": (
                 None if placed is None or overlap is None or agent.name == reference else round(placed - overlap, 1)
             ),
-            "placement": history_errors(
-                backend.history(agent.name), invert(world_map[reference]) @ world_map[agent.name], end
+            "right_merge_after_overlap_s": (
+                None if right is None or overlap is None or agent.name == reference else round(right - overlap, 1)
             ),
+            "placement": placement,
             "own_ate_alone_m": alone.get(agent.name), "own_ate_collaborating_m": own_ate(agent),
             "summary_bytes_mean": round(float(np.mean(agent.summary_sizes))),
             "summary_bytes_max": int(np.max(agent.summary_sizes)),
