@@ -8,8 +8,8 @@ translational error of relative motions over ``delta`` frames or metres.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
