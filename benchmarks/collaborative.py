@@ -12,10 +12,11 @@ resolution and rate into ``FLEETSLAM_BENCH_CACHE`` (default ``~/.cache/fleetslam
   c3po (the simultaneous case), then sweeps the loop's inside in alternate directions and ends on the loop's north
   side, which r2d2 drove 40 s before;
 - ``k2so``: ``figure_eight`` (4.5 × 3.4 m) from the loop's east side heading north, so its lobes cross the
-  others' aisles at 45–90°: it sees their places from other directions and at other times (10–30 s apart).
+  others' aisles: it sees their places from other directions and at other times.
 
-Every agent overlaps at least two others (ground truth: pairs of frames 0.4–30 s apart, median 13–28 s, headings
-differing 15–25° on average). No route was added to the simulator.
+In every configuration each agent overlaps every other (ground truth, below: over the overlapping pairs of frames
+of two agents, the median time between the two views is 13–28 s and the mean heading difference 15–24°; bb8 and
+c3po also overlap at once, leaving side by side). No route was added to the simulator.
 
 **Overlap** (ground truth): agent a's camera at time t sees a place agent b's camera saw at t' ≤ t when the camera
 centres are within :data:`OVERLAP_M` (1.5 m) and the optical axes within :data:`OVERLAP_DEG` (45°). The first
@@ -58,8 +59,8 @@ fleet frame by the fleet-ATE alignment) and the verified closures (believed and 
 red, not believed grey).
 
 Progress on stderr; the JSON line on stdout holds every configuration, whether each target was met, and the wall
-and CPU time (the configurations run one after the other on one core: the CPU time is the wall time of an idle
-machine).
+and CPU time (all threads; the agents run one after the other in one thread, so on an idle machine the wall time
+is about the CPU time).
 
 Usage: python benchmarks/collaborative.py [--agents 2,3,4] [--scene procedural] [--resolution 320x240]
            [--rate 10] [--out results/benchmarks]
@@ -85,7 +86,7 @@ from fleetslam.datasets import open_source
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.eval import ape, fleet_ape
 from fleetslam.fusion.alignment import rigid_fit
-from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
+from fleetslam.fusion.collaboration import InterAgentLinker, SharedClosure
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields
 from fleetslam.geometry import invert, pose_to_quat, rotation_angle
@@ -292,7 +293,7 @@ def make_agent(plan: AgentPlan, path: Path, *, collaborate: bool) -> Agent:
     source = open_source(path)
     pipeline = SlamPipeline(SlamConfig(), source, base_camera=getattr(source, "base_camera", None))
     # The budget in this thread's CPU time: on a shared machine wall time would hand out recognition at random.
-    linker = InterAgentLinker(plan.name, CollaborationConfig(), clock=time.thread_time) if collaborate else None
+    linker = InterAgentLinker(plan.name, NODE.collaboration, clock=time.thread_time) if collaborate else None
     return Agent(plan, source, pipeline, linker)
 
 
