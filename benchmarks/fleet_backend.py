@@ -4,7 +4,7 @@ fleet back-end node (``fleetslam fleet backend``, its own process) over a real Z
 What is real and what is replicated:
 
 - **Recorded once, real**: two SLAM agents (``c3po``, ``r2d2``, the defaults, wheel prior) run offline side by
-  side on the simulator exports of ``benchmarks/collab_slam.py`` (the same part of the plant entered from opposite
+  side on the simulator exports of ``benchmarks/collaborative.py`` (the same part of the plant entered from opposite
   corners, no known start poses). Each one's keyframe graph goes out as it would on ``graph_updates``: deltas from
   a :class:`~fleetslam.fusion.graph_exchange.GraphDeltaWriter` after every keyframe, with the agent's odometry and
   loop constraints and the inter-agent closures its :class:`~fleetslam.fusion.collaboration.InterAgentLinker`
@@ -58,7 +58,7 @@ from fleetslam.msg.conversions import pose_matrix, pose_msg, pose_msgs
 from fleetslam.msg.typesys import deserialize, get_type, ns_from_stamp, serialize
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from collab_slam import AGENTS, cache_dir, export, make_agent
+from collaborative import AGENTS, cache_dir, export, make_agent
 
 GRAPH_TYPE = "fleetslam_msgs/msg/KeyframeGraph"
 TARGET_LAG_S = 1.0
@@ -81,7 +81,11 @@ def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
     import cv2
 
     cv2.setNumThreads(1)
-    agents = [make_agent(name, export(scene, route, name, x, y, yaw, size, hz)) for name, x, y, yaw in AGENTS]
+    plans = AGENTS[:2]  # the two robots of the demo's shared patrol
+    if any(plan.route != route for plan in plans):
+        raise SystemExit(f"--route {route}: the recorded pair drives {plans[0].route} (benchmarks/collaborative.py)")
+    agents = [make_agent(plan, export(scene, plan, size, hz), collaborate=True) for plan in plans]
+    linkers = {agent.name: agent.linker for agent in agents if agent.linker is not None}
     writers = {a.name: GraphDeltaWriter[Any]() for a in agents}
     constraints: dict[str, list[Any]] = {a.name: [] for a in agents}
     taken = dict.fromkeys(writers, 0)
@@ -108,10 +112,11 @@ def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
                 other = agents[1 - index]
                 step = agent.pipeline.step(frame)
                 matches = []
-                if agent.linker.queue and agent.pipeline.loop_closure:
+                linker = linkers[agent.name]
+                if linker.queue and agent.pipeline.loop_closure:
                     if agent.recognizer is None:
                         agent.recognizer = agent.pipeline.peer_recognizer()
-                    matches = agent.linker.step(agent.recognizer, agent.pipeline.keyframe_poses())
+                    matches = linker.step(agent.recognizer, agent.pipeline.keyframe_poses())
                 epoch_of_other = writers[other.name].epoch
                 constraints[agent.name] += [
                     _constraint(from_id=m.own_id, to_id=m.peer_id, from_agent=agent.name, to_agent=m.peer_agent,
@@ -126,7 +131,7 @@ def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
                 poses = agent.pipeline.keyframe_poses()
                 stamps[agent.name][step.keyframe_id] = frame.stamp
                 result = step.odometry
-                other.linker.queue_summary(
+                linkers[other.name].queue_summary(
                     summarize(agent.name, step.keyframe_id, round(frame.stamp * 1e9), poses[step.keyframe_id],
                               agent.pipeline.intrinsics, result.keypoints, result.points3d,
                               np.asarray(result.descriptors), epoch=writers[agent.name].epoch)
@@ -144,7 +149,7 @@ def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
                 update = writers[agent.name].update(poses, stamps[agent.name], constraints[agent.name])
                 if update is None:
                     continue
-                other.linker.apply_graph(agent.name, update)
+                linkers[other.name].apply_graph(agent.name, update)
                 msg = graph_message(agent.name, update, stamp_ns=round(frame.stamp * 1e9), optimized=step.loop_closed)
                 bag.write(topics.GRAPH_UPDATES.of(agent.name), GRAPH_TYPE, round(frame.stamp * 1e9),
                           serialize(msg, GRAPH_TYPE))  # fmt: skip

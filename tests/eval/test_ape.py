@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fleetslam.errors import DatasetError
-from fleetslam.eval import ape, rpe
-from fleetslam.geometry import make_pose
+from fleetslam.eval import ape, fleet_ape, rpe
+from fleetslam.geometry import invert, make_pose, so3_exp
 from fleetslam.trajectory import Trajectory
 
 
@@ -65,3 +65,25 @@ def test_plot_shows_every_estimate_with_its_error(tmp_path: Path) -> None:
     # Blue (estimate) and red (the other) curves are both drawn.
     rgb = image[..., :3]
     assert np.any((rgb[..., 2] > 0.8) & (rgb[..., 0] < 0.2)) and np.any((rgb[..., 0] > 0.8) & (rgb[..., 2] < 0.2))
+
+
+def _moved(trajectory: Trajectory, transform: np.ndarray) -> Trajectory:
+    return Trajectory(trajectory.stamps, np.einsum("ij,njk->nik", transform, trajectory.poses))
+
+
+def test_fleet_ape_aligns_all_robots_once() -> None:
+    """Two robots placed correctly in a fleet frame give no error and the fleet frame's pose; the second robot
+    misplaced by 0.4 m counts in the fleet APE, although each robot aligned alone would show none."""
+    first, second = _line(20), _moved(_line(20, stamp_shift=0.05), make_pose(translation=[0.0, 2.0, 0.0]))
+    world_fleet = make_pose(so3_exp([0.1, -0.2, 0.7]), [3.0, -1.0, 0.2])
+    fleet_of = invert(world_fleet)
+    result, alignment = fleet_ape({"a": (first, _moved(first, fleet_of)), "b": (second, _moved(second, fleet_of))})
+    assert result.rmse == pytest.approx(0.0, abs=1e-9)
+    assert result.pairs == 40
+    np.testing.assert_allclose(alignment, world_fleet, atol=1e-9)
+    misplaced = _moved(second, make_pose(translation=[0.4, 0.0, 0.0]) @ fleet_of)
+    assert ape(second, misplaced).rmse == pytest.approx(0.0, abs=1e-9)
+    wrong, _ = fleet_ape({"a": (first, _moved(first, fleet_of)), "b": (second, misplaced)})
+    assert 0.15 < wrong.rmse < 0.4
+    with pytest.raises(DatasetError, match="at least one"):
+        fleet_ape({})

@@ -8,10 +8,12 @@ translational error of relative motions over ``delta`` frames or metres.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fleetslam._imports import require
 from fleetslam.errors import DatasetError
@@ -95,6 +97,42 @@ def ape(
         f"alignment: {'Umeyama SE(3)' if align else 'none'}{' + scale (Sim(3))' if scale else ''}"
     )
     return _stats(metric, ref.num_poses, conv)
+
+
+def fleet_ape(
+    pairs: Mapping[str, tuple[Trajectory, Trajectory]], *, max_diff: float = 0.02
+) -> tuple[ApeResult, NDArray[np.float64]]:
+    """Absolute trajectory error of several robots' estimates, all in one (fleet) frame, against their ground truths
+    in one (world) frame, with one SE(3) alignment over all of them (COVINS' convention: each robot's poses associated
+    with its own ground truth, then concatenated and aligned once, so a robot misplaced in the fleet frame counts).
+
+    ``pairs``: robot → (ground truth, estimate). Returns the statistics and ``T_world_fleet`` (the alignment)."""
+    evo = _evo()
+    if not pairs:
+        raise DatasetError("fleet APE needs at least one robot's trajectory")
+    refs, ests = [], []
+    for robot, (gt, est) in pairs.items():
+        try:
+            ref, est_evo = _associate(gt, est, max_diff)
+        except DatasetError as err:
+            raise DatasetError(f"{robot}: {err}") from err
+        refs += list(ref.poses_se3)
+        ests += list(est_evo.poses_se3)
+    ref_path = evo.core.trajectory.PosePath3D(poses_se3=refs)
+    est_path = evo.core.trajectory.PosePath3D(poses_se3=ests)
+    try:
+        rotation, translation, _ = est_path.align(ref_path)
+    except evo.core.geometry.GeometryException as err:
+        raise DatasetError(f"trajectories cannot be aligned (degenerate, e.g. a straight line): {err}") from err
+    metric = evo.core.metrics.APE(evo.core.metrics.PoseRelation.translation_part)
+    metric.process_data((ref_path, est_path))
+    conv = (
+        f"APE translation [m] over {len(pairs)} robots' concatenated trajectories; timestamps associated within "
+        f"{max_diff} s per robot; alignment: one Umeyama SE(3) for all"
+    )
+    alignment = np.eye(4)
+    alignment[:3, :3], alignment[:3, 3] = rotation, translation
+    return _stats(metric, len(refs), conv), alignment
 
 
 def rpe(
