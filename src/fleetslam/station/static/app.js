@@ -359,25 +359,39 @@ function animate(now) {
 requestAnimationFrame(animate);
 
 // ---------------------------------------------------------------- agents, camera, statistics
+// Names come from the network (any node may name itself): they are inserted as text, never as HTML.
+function el(tag, props = {}, ...children) {
+  const node = document.createElement(tag);
+  Object.assign(node, props);
+  for (const child of children) node.append(child);
+  return node;
+}
 function renderAgents() {
   const box = document.getElementById("agents");
-  box.innerHTML = "";
+  box.replaceChildren();
   for (const name of state.agents) {
-    const b = document.createElement("button");
-    b.innerHTML = `<span class="swatch" style="background:${agentColor(name)}"></span>${name}`;
+    const swatch = el("span", { className: "swatch" });
+    swatch.style.background = agentColor(name);
+    const b = el("button", {}, swatch, name);
     if (name === state.selected) b.classList.add("selected");
     b.onclick = () => select(name);
     box.appendChild(b);
   }
-  document.getElementById("legend").innerHTML = state.agents
-    .map((a) => `<span style="color:${agentColor(a)}">■</span> ${a}`).join("&nbsp;&nbsp;") +
-    "&nbsp;&nbsp;<span style='color:#aab4c0'>■</span> fleet map &nbsp; in the fleet frame; an agent not merged yet in its own, beside it";
+  const legend = document.getElementById("legend");
+  legend.replaceChildren();
+  for (const a of [...state.agents, "fleet"]) {
+    const mark = el("span", { textContent: "■" });
+    mark.style.color = agentColor(a);
+    legend.append(mark, ` ${a === "fleet" ? "fleet map" : a}\u00a0\u00a0`);
+  }
+  legend.append("in the fleet frame; an agent not merged yet in its own, beside it");
 }
 function select(name) {
   state.selected = name;
   send({ type: "select", agent: name });
   document.getElementById("camera-title").textContent = `camera · ${name}`;
   renderAgents();
+  if (typeof renderEstop === "function") renderEstop();
 }
 function onImage(msg) {
   if (msg.agent !== state.selected) return;
@@ -386,18 +400,47 @@ function onImage(msg) {
   state.lastFrameSeq = msg.seq;
   document.getElementById("camera-meta").textContent = `${msg.kind} frame ${msg.seq} · ${new Date().toLocaleTimeString()}`;
 }
+// The statistics table, grouped by publishing agent, then by topic: a topic's row sums its subscribers, and one
+// row per subscriber below it names the publishing and subscribing nodes (each subscription reports its own).
 function onStats(msg) {
   const body = document.querySelector("#stats tbody");
+  const figures = (r) => [
+    (r.bandwidth_bps / 1000).toFixed(1), r.rate_hz.toFixed(1), String(r.dropped),
+    `${r.age_mean_ms.toFixed(1)}±${r.age_std_ms.toFixed(1)}`, `${r.period_mean_ms.toFixed(0)}±${r.period_std_ms.toFixed(0)}`,
+  ];
+  const row = (className, label, cells, title, dropped) => {
+    const tr = el("tr", { className });
+    tr.append(el("td", { textContent: label, title: title || "" }));
+    cells.forEach((text, i) => {
+      const td = el("td", { textContent: text });
+      if (i === 2 && dropped) td.className = "drop";
+      tr.append(td);
+    });
+    return tr;
+  };
   const rows = [];
-  let current = null, bw = 0, drops = 0;
+  let bw = 0, drops = 0;
+  const byAgent = new Map();
   for (const r of msg.rows) {
-    if (r.agent !== current) { current = r.agent; rows.push(`<tr class="agent"><td colspan="6">${r.agent || "(root)"}</td></tr>`); }
     bw += r.bandwidth_bps; drops += r.dropped;
-    rows.push(`<tr><td title="${r.node_pub} → ${r.node_sub}">${r.topic}</td><td>${(r.bandwidth_bps / 1000).toFixed(1)}</td>` +
-      `<td>${r.rate_hz.toFixed(1)}</td><td class="${r.dropped ? "drop" : ""}">${r.dropped}</td>` +
-      `<td>${r.age_mean_ms.toFixed(1)}±${r.age_std_ms.toFixed(1)}</td><td>${r.period_mean_ms.toFixed(0)}±${r.period_std_ms.toFixed(0)}</td></tr>`);
+    const topics = byAgent.get(r.agent) || new Map();
+    byAgent.set(r.agent, topics);
+    topics.set(r.topic, [...(topics.get(r.topic) || []), r]);
   }
-  body.innerHTML = rows.join("");
+  for (const [agent, topics] of byAgent) {
+    const header = el("tr", { className: "agent" }, el("td", { colSpan: 6, textContent: agent || "(root)" }));
+    rows.push(header);
+    for (const [topic, subs] of topics) {
+      const sum = subs.reduce((a, r) => ({ bw: a.bw + r.bandwidth_bps, dropped: a.dropped + r.dropped }), { bw: 0, dropped: 0 });
+      const publishers = [...new Set(subs.map((r) => r.node_pub || "?"))].join(", ");
+      rows.push(row("topic", topic, [(sum.bw / 1000).toFixed(1), "", String(sum.dropped), "", ""],
+        `published by ${publishers}; ${subs.length} subscriber(s)`, sum.dropped));
+      for (const r of subs) {
+        rows.push(row("subscriber", `${r.node_pub || "?"} → ${r.node_sub}`, figures(r), `${topic}`, r.dropped));
+      }
+    }
+  }
+  body.replaceChildren(...rows);
   document.getElementById("stats-summary").textContent = `${(bw / 1e6).toFixed(2)} MB/s · ${drops} dropped`;
 }
 document.getElementById("depth-toggle").onchange = (e) => {
@@ -468,12 +511,48 @@ stick.addEventListener("pointerdown", (e) => { stick.setPointerCapture(e.pointer
 stick.addEventListener("pointermove", (e) => { if (stick.hasPointerCapture(e.pointerId)) stickMove(e); });
 stick.addEventListener("pointerup", () => { state.stick = { v: 0, w: 0 }; state.deadman.button = false; knob.style.left = "42px"; knob.style.top = "42px"; });
 
+// ---------------------------------------------------------------- e-stop
+// The button shows what the robot answered, never what was asked: "engaged" only once the robot's `e_stop` service
+// confirmed it. While a request is out it says so; a refusal, or no answer within ESTOP_TIMEOUT_MS, is shown to the
+// operator and the button stays as the robot last confirmed. Driving is blocked from the click on (safe side).
+const ESTOP_TIMEOUT_MS = 5000;
+state.estopBy = {}; // agent -> engaged, as the robot last confirmed
+state.estopPending = null; // { agent, engage, timer }
+function renderEstop(text, error) {
+  state.estop = !!state.estopBy[state.selected] || !!state.estopPending;
+  const button = document.getElementById("estop"), line = document.getElementById("estop-message");
+  const pending = state.estopPending && state.estopPending.agent === state.selected ? state.estopPending : null;
+  const engaged = !!state.estopBy[state.selected];
+  button.classList.toggle("engaged", engaged);
+  button.classList.toggle("pending", !!pending);
+  button.textContent = pending ? `${pending.engage ? "engaging" : "releasing"} e-stop… (waiting for ${pending.agent})`
+    : engaged ? "E-STOP ENGAGED (click to release)" : "E-STOP";
+  if (text !== undefined) { line.textContent = text; line.classList.toggle("error", !!error); }
+}
+function onEstop(msg) {
+  const pending = state.estopPending;
+  if (!pending || pending.agent !== msg.agent || pending.engage !== msg.engaged) return; // not the request out
+  clearTimeout(pending.timer);
+  state.estopPending = null;
+  if (msg.ok) {
+    state.estopBy[msg.agent] = msg.engaged;
+    renderEstop(`${msg.agent}: e-stop ${msg.engaged ? "engaged" : "released"} (${msg.message || "confirmed"})`, false);
+  } else {
+    renderEstop(`${msg.agent} refused: ${msg.message || "no reason given"}`, true);
+  }
+}
 document.getElementById("estop").onclick = () => {
-  if (!state.selected) return;
-  state.estop = !state.estop;
-  document.getElementById("estop").classList.toggle("engaged", state.estop);
-  document.getElementById("estop").textContent = state.estop ? "E-STOP ENGAGED (click to release)" : "E-STOP";
-  send({ type: "estop", agent: state.selected, engage: state.estop });
+  if (!state.selected || state.estopPending) return;
+  const agent = state.selected, engage = !state.estopBy[agent];
+  const timer = setTimeout(() => {
+    if (state.estopPending && state.estopPending.timer === timer) {
+      state.estopPending = null;
+      renderEstop(`${agent} did not answer the e-stop request within ${ESTOP_TIMEOUT_MS / 1000} s`, true);
+    }
+  }, ESTOP_TIMEOUT_MS);
+  state.estopPending = { agent, engage, timer };
+  renderEstop("", false);
+  send({ type: "estop", agent, engage });
 };
 for (const [id, out] of [["max-v", "max-v-out"], ["max-w", "max-w-out"]]) {
   document.getElementById(id).oninput = (e) => { document.getElementById(out).textContent = parseFloat(e.target.value).toFixed(2); };
@@ -768,7 +847,7 @@ function connect() {
       case "pong":
         state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
         break;
-      case "estop": if (!msg.ok) console.warn("e-stop:", msg.message); break;
+      case "estop": onEstop(msg); break;
     }
   };
   socket.onopen = () => { if (state.selected) send({ type: "select", agent: state.selected }); send({ type: "camera", kind: state.camera }); };
