@@ -126,8 +126,19 @@ def test_a_30s_link_cut_loses_no_keyframe_and_the_summaries_come_by_catch_up() -
                     for n, a in agents.items()
                 )  # fmt: skip
 
+            # Settled for 2 s in a row: a keyframe the parked camera still made in its first moments (on a loaded
+            # machine its last frames arrive late) would otherwise be reported by one side before the other has it.
+            stable: dict[str, Any] = {"counts": None, "since": 0.0}
+
+            def settled_for_2s() -> bool:
+                counts = {n: (a.status["keyframes"], a.status["mirror"]) for n, a in agents.items()}
+                if not settled() or counts != stable["counts"]:
+                    stable.update(counts=counts, since=time.time())
+                    return False
+                return time.time() - stable["since"] >= 2.0
+
             time.sleep(1.0)
-            assert _wait(settled, 20.0), {n: a.status for n, a in agents.items()}
+            assert _wait(settled_for_2s, 30.0), {n: a.status for n, a in agents.items()}
             for a in agents.values():
                 a.send("report")
             assert _wait(lambda: all(a.reports for a in agents.values()), 20.0)
