@@ -29,8 +29,10 @@ every ``graph_period``, at once after a loop closure), with the inter-agent clos
 constraints that the peers take as shared closures; both are CDR-serialised to count their bytes. The linker's
 time budget is counted in the thread's CPU time (the machine is shared: wall time would starve it at random).
 An agent is placed in the fleet frame (the reference agent's map: the alphabetically first, as the node does) by
-its linker's ``fleet_transform`` through any placed peer (:class:`LinkerPlacement`; ``FLEET_BACKENDS`` is where a
-joint optimiser plugs in).
+its linker's ``fleet_transform`` through any placed peer (:class:`LinkerPlacement`). With ``--joint``, the fleet
+back-end node's joint optimisation (:class:`JointPlacement`: a ``FleetGraph`` with GNC, fed by the agents' graph
+updates, solving at the node's rate in simulated time) places them too, in the same run (the back-ends only watch
+the agents), and its figures go under ``joint``.
 
 Figures per configuration:
 
@@ -63,7 +65,7 @@ and CPU time (all threads; the agents run one after the other in one thread, so 
 is about the CPU time).
 
 Usage: python benchmarks/collaborative.py [--agents 2,3,4] [--scene procedural] [--resolution 320x240]
-           [--rate 10] [--out results/benchmarks]
+           [--rate 10] [--joint] [--out results/benchmarks]
 """
 
 from __future__ import annotations
