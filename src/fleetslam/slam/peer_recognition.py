@@ -6,10 +6,10 @@ locations in RAM (short-term and working memory), as the agent's own loop closur
 few candidates, within a budget, are verified as the agent verifies its own loops: descriptor matches, PnP RANSAC
 from the candidate's 3D points into the peer's image and back the other way, the two directions agreeing; and,
 unlike its own loops, with enough inliers off the plane that holds most of them (:data:`MIN_OFF_PLANE_INLIERS`:
-a tiled floor admits solutions shifted by its period). The
-transform is full 6-DoF between the two cameras (the peer's mounting is not known here). The peer's keypoints
-are first expressed in this camera's pixels (``K_own · K_peer⁻¹``, exact for undistorted pinhole cameras), so
-robots with different cameras recognise each other.
+a tiled floor admits solutions shifted by its period). The transform is full 6-DoF between the two cameras (the
+peer's mounting is not known here). The peer's keypoints are first expressed in this camera's pixels
+(``K_own · K_peer⁻¹``, exact for undistorted pinhole cameras), so robots with different cameras recognise each
+other.
 
 Pure: the caller owns the memory and calls :meth:`PeerPlaceRecognizer.recognize` from the thread that updates it.
 """
