@@ -29,8 +29,10 @@ every ``graph_period``, at once after a loop closure), with the inter-agent clos
 constraints that the peers take as shared closures; both are CDR-serialised to count their bytes. The linker's
 time budget is counted in the thread's CPU time (the machine is shared: wall time would starve it at random).
 An agent is placed in the fleet frame (the reference agent's map: the alphabetically first, as the node does) by
-its linker's ``fleet_transform`` through any placed peer (:class:`LinkerPlacement`; ``FLEET_BACKENDS`` is where a
-joint optimiser plugs in).
+its linker's ``fleet_transform`` through any placed peer (:class:`LinkerPlacement`). With ``--joint``, the fleet
+back-end node's joint optimisation (:class:`JointPlacement`: a ``FleetGraph`` with GNC, fed by the agents' graph
+updates, solving at the node's rate in simulated time) places them too, in the same run (the back-ends only watch
+the agents), and its figures go under ``joint``.
 
 Figures per configuration:
 
@@ -63,7 +65,7 @@ and CPU time (all threads; the agents run one after the other in one thread, so 
 is about the CPU time).
 
 Usage: python benchmarks/collaborative.py [--agents 2,3,4] [--scene procedural] [--resolution 320x240]
-           [--rate 10] [--out results/benchmarks]
+           [--rate 10] [--joint] [--out results/benchmarks]
 """
 
 from __future__ import annotations
@@ -87,6 +89,8 @@ from fleetslam.datasets.base import RGBDFrame
 from fleetslam.eval import ape, fleet_ape
 from fleetslam.fusion.alignment import rigid_fit
 from fleetslam.fusion.collaboration import InterAgentLinker, SharedClosure
+from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolution
+from fleetslam.fusion.fleet_graph_node import FleetGraphConfig
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields
 from fleetslam.geometry import invert, pose_to_quat, rotation_angle
@@ -281,6 +285,8 @@ class Agent:
     believed: dict[tuple[str, int, int], Pose] = field(default_factory=dict)
     """(peer, own keyframe, peer keyframe) -> ``T_owncamera_peercamera`` of every closure that was in an accepted
     consistent set at some point."""
+    published: list[GraphUpdate[Constraint]] = field(default_factory=list)
+    """Graph updates sent since the fleet back-ends last observed the fleet (what a fleet back-end node receives)."""
     first_stamp: float | None = None
     last_stamp: float = 0.0
 
@@ -324,7 +330,10 @@ def step_agent(agent: Agent, frame: RGBDFrame, fleet: Sequence[Agent], *, everyt
         agent.graph_changed = True
     if (agent.linker.queue or agent.linker.shared) and agent.pipeline.loop_closure:
         if agent.recognizer is None:
-            agent.recognizer = agent.pipeline.peer_recognizer(max_verifications=NODE.collaboration.max_verifications)
+            agent.recognizer = agent.pipeline.peer_recognizer(
+                max_verifications=NODE.collaboration.max_verifications,
+                min_off_plane=NODE.collaboration.min_off_plane_inliers,
+            )
         start = time.thread_time()
         matches = agent.linker.step(agent.recognizer, agent.pipeline.keyframe_poses())
         agent.recognition_ms.append((time.thread_time() - start) * 1000.0)
@@ -371,6 +380,7 @@ def send_graph(agent: Agent, stamp: float, peers: Sequence[Agent]) -> None:
     if update is None:
         return
     agent.delta_sizes.append(delta_bytes(agent.name, update, stamp))
+    agent.published.append(update)
     for peer in peers:
         assert peer.linker is not None
         peer.linker.apply_graph(agent.name, update)  # type: ignore[arg-type]
@@ -396,6 +406,10 @@ class FleetBackend(Protocol):
         ...
 
     def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]: ...
+
+    def figures(self) -> dict[str, Any]:
+        """What the back-end itself measured (for the JSON line)."""
+        ...
 
 
 class LinkerPlacement:
@@ -437,13 +451,100 @@ class LinkerPlacement:
                 out[agent.name] = Trajectory(own.stamps, np.einsum("ij,njk->nik", placement, own.poses))
         return out
 
+    def figures(self) -> dict[str, Any]:
+        return {}
 
-FLEET_BACKENDS: Mapping[str, Callable[[str], FleetBackend]] = {"linkers": LinkerPlacement}
+
+class JointPlacement:
+    """The fleet back-end node's joint optimisation (:class:`~fleetslam.fusion.fleet_graph.FleetGraph`, GNC over every
+    agent's keyframes and the inter-agent closures they published), fed by the agents' graph updates as the node is,
+    solving at most at the node's rate (simulated time); each agent placed by its solution's ``T_fleet_map``, and its
+    trajectory its own, moved rigidly by the final one (as the fleet map places it from ``/fleet/placements``)."""
+
+    def __init__(self, reference: str) -> None:
+        c = FleetGraphConfig()
+        self.reference = reference
+        self.period = 1.0 / c.rate
+        self.graph = FleetGraph(
+            reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
+            inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
+            recent_keyframes=c.recent_keyframes, min_closures=c.min_closures, min_places=c.min_places,
+            dominance=c.dominance,
+        )  # fmt: skip
+        self.solved_at = -math.inf
+        self.solves = 0
+        self.solve_cpu_s = 0.0
+        self.last: FleetSolution | None = None
+        """The last solve's outcome."""
+        self.first_placed: dict[str, float] = {}
+        self.histories: dict[str, list[tuple[float, Pose | None]]] = {}
+
+    def observe(self, fleet: Sequence[Agent], stamp: float) -> None:
+        for agent in fleet:
+            for update in agent.published:
+                self.graph.apply(agent.name, closure_reports(agent.name, update))
+        if stamp - self.solved_at >= self.period:
+            self.solve(stamp)
+
+    def solve(self, stamp: float) -> None:
+        solution = self.graph.solve()
+        if solution is None:
+            return
+        self.solved_at, self.last = stamp, solution
+        self.solves += 1
+        self.solve_cpu_s += solution.cpu_seconds
+        for name in set(self.histories) | set(solution.placements):
+            placement = solution.placements.get(name)
+            remember(self.histories.setdefault(name, []), stamp, None if placement is None else placement.T_fleet_map)
+            if placement is not None and name not in self.first_placed:
+                self.first_placed[name] = stamp
+                if name != self.reference:
+                    progress(f"  {name} placed in the fleet frame at {stamp:.1f} s (joint)")
+
+    def placed_at(self, agent: str) -> float | None:
+        return self.first_placed.get(agent)
+
+    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
+        return self.histories.get(agent, [])
+
+    def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]:
+        self.solve(max(a.last_stamp for a in fleet))  # the updates sent since the last solve
+        out = {}
+        for agent in fleet:
+            placement = self.graph.solution.get(agent.name)
+            if placement is not None:
+                own = agent.pipeline.result().trajectory
+                out[agent.name] = Trajectory(own.stamps, np.einsum("ij,njk->nik", placement.T_fleet_map, own.poses))
+        return out
+
+    def figures(self) -> dict[str, Any]:
+        last = self.last
+        return {
+            "solves": self.solves, "solve_cpu_s": round(self.solve_cpu_s, 1),
+            "closures_kept": None if last is None else len(last.kept),
+            "closures_rejected": None if last is None else len(last.rejected),
+        }  # fmt: skip
+
+
+def closure_reports(agent: str, update: GraphUpdate[Constraint]) -> GraphUpdate[Any]:
+    """The update as the fleet back-end node converts it: its inter-agent closures as ``ClosureReport``."""
+    closures = [
+        ClosureReport(agent, c.match.own_id, c.match.peer_agent, c.match.peer_id, c.match.relative, c.peer_epoch)
+        for c in update.constraints
+        if isinstance(c, InterAgent)
+    ]
+    return GraphUpdate(update.sequence, update.full, update.poses, update.stamps, closures, update.epoch)
+
+
+FLEET_BACKENDS: Mapping[str, Callable[[str], FleetBackend]] = {"linkers": LinkerPlacement, "joint": JointPlacement}
 
 
 # -- running --------------------------------------------------------------------------------------------------
-def run_side_by_side(fleet: Sequence[Agent], backend: FleetBackend | None, label: str, *, everything: bool) -> float:
-    """Every agent's frames in turn, one each per round, until all sources are done; returns the wall time."""
+def run_side_by_side(
+    fleet: Sequence[Agent], backends: Sequence[FleetBackend], label: str, *, everything: bool
+) -> float:
+    """Every agent's frames in turn, one each per round, until all sources are done, the back-ends observing the
+    fleet after each round (they only watch: the agents run the same whichever are there); returns the wall time."""
     iterators = [iter(a.source.frames(1)) for a in fleet]
     done = [False] * len(fleet)
     t0, frames = time.perf_counter(), 0
@@ -459,8 +560,10 @@ def run_side_by_side(fleet: Sequence[Agent], backend: FleetBackend | None, label
             frames += 1
             stamp = max(stamp, frame.stamp)
             step_agent(agent, frame, fleet, everything=everything)
-        if backend is not None:
+        for backend in backends:
             backend.observe(fleet, stamp)
+        for agent in fleet:
+            agent.published.clear()
         if frames and frames % (100 * len(fleet)) < len(fleet):
             progress(f"  {label}: {frames} frames, {stamp:.0f} s simulated, {time.perf_counter() - t0:.0f} s")
     return time.perf_counter() - t0
@@ -557,9 +660,11 @@ def run_configuration(
     reference = min(names)
     fleet = [make_agent(p, paths[p.name], collaborate=True) for p in plans]
     backend = FLEET_BACKENDS[args.backend](reference)
+    joint = JointPlacement(reference) if args.joint and args.backend != "joint" else None
     progress(f"{len(fleet)} agents ({', '.join(names)}; fleet frame: {reference}'s map)")
     cpu = time.process_time()
-    wall = run_side_by_side(fleet, backend, f"{len(fleet)} agents", everything=True)
+    wall = run_side_by_side(fleet, [backend] if joint is None else [backend, joint], f"{len(fleet)} agents",
+                            everything=True)  # fmt: skip
     cpu = time.process_time() - cpu
     gts = {a.name: a.source.groundtruth() for a in fleet}
     nearest = {name: NearestPose(gt, 0.02) for name, gt in gts.items()}
@@ -654,6 +759,7 @@ def run_configuration(
     record["pairs"] = pairs
 
     trajectories = backend.trajectories(fleet)
+    record["backend"] = {"name": args.backend, **backend.figures()}
     record["placed"] = sorted(trajectories)
     record["all_placed"] = len(trajectories) == len(fleet)
     alignment = None
@@ -698,6 +804,52 @@ def run_configuration(
     }
     record["targets_met"] = all(record["targets"].values())
     plot(fleet, trajectories, gts, alignment, believed, Path(args.out) / f"collaborative_{len(fleet)}agents.png")
+    if joint is not None:
+        record["joint"] = placement_figures(joint, fleet, gts, overlaps, world_map, end)
+        joint_trajectories = joint.trajectories(fleet)
+        if joint_trajectories:
+            _, joint_alignment = fleet_ape({name: (gts[name], joint_trajectories[name]) for name in joint_trajectories})
+            plot(fleet, joint_trajectories, gts, joint_alignment, believed,
+                 Path(args.out) / f"collaborative_{len(fleet)}agents_joint.png")  # fmt: skip
+    return record
+
+
+def placement_figures(
+    backend: FleetBackend, fleet: Sequence[Agent], gts: Mapping[str, Trajectory],
+    overlaps: Mapping[tuple[str, str], float], world_map: Mapping[str, Pose], end: float,
+) -> dict[str, Any]:  # fmt: skip
+    """The figures that depend on where a back-end placed the agents (for ``--joint``, beside the linkers')."""
+    reference = backend.reference
+    trajectories = backend.trajectories(fleet)  # first: it takes the updates sent since the last solve
+    per_agent: dict[str, dict[str, Any]] = {}
+    for agent in fleet:
+        overlap = min((t for pair, t in overlaps.items() if agent.name in pair), default=None)
+        placed = backend.placed_at(agent.name)
+        placement = history_errors(
+            backend.history(agent.name), invert(world_map[reference]) @ world_map[agent.name], end
+        )
+        right = placement["first_right_s"]
+        per_agent[agent.name] = {
+            "placed_at_s": None if placed is None else round(placed, 1),
+            "merge_after_overlap_s": (
+                None if placed is None or overlap is None or agent.name == reference else round(placed - overlap, 1)
+            ),
+            "right_merge_after_overlap_s": (
+                None if right is None or overlap is None or agent.name == reference else round(right - overlap, 1)
+            ),
+            "placement": placement,
+        }
+    record: dict[str, Any] = {"backend": backend.figures(), "per_agent": per_agent, "placed": sorted(trajectories),
+                              "all_placed": len(trajectories) == len(fleet)}  # fmt: skip
+    if trajectories:
+        stats, _ = fleet_ape({name: (gts[name], trajectories[name]) for name in trajectories})
+        record["fleet_ate_m"] = round(stats.rmse, 4)
+        record["fleet_ate_max_m"] = round(stats.max, 4)
+    record["misplaced_s"] = {name: v["placement"]["false_s"] for name, v in per_agent.items()}
+    record["targets"] = {
+        "fleet_ate_le_5cm": bool(record["all_placed"] and record.get("fleet_ate_m", math.inf) <= FLEET_ATE_TARGET_M),
+        "never_misplaced": not any(record["misplaced_s"].values()),
+    }
     return record
 
 
@@ -756,7 +908,7 @@ def plot(
 def run_alone(plan: AgentPlan, path: Path) -> float:
     """The peer: the agent's own ATE with no collaboration at all."""
     agent = make_agent(plan, path, collaborate=False)
-    run_side_by_side([agent], None, f"{plan.name} alone", everything=False)
+    run_side_by_side([agent], [], f"{plan.name} alone", everything=False)
     return own_ate(agent)
 
 
@@ -769,7 +921,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     plans = AGENTS[: max(counts)]
     paths = {p.name: export(args.scene, p, (width, height), args.rate) for p in plans}
     alone = {}
-    for plan in plans:
+    for plan in plans if args.alone else ():
         alone[plan.name] = run_alone(plan, paths[plan.name])
         progress(f"{plan.name} alone: ATE {alone[plan.name] * 100:.1f} cm")
     configurations = []
@@ -779,7 +931,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         progress(f"{n} agents: fleet ATE {c.get('fleet_ate_m')} m, placed {c['placed']}, targets {c['targets']}")
     return {
         "benchmark": "collaborative", "scene": args.scene, "resolution": args.resolution, "rate_hz": args.rate,
-        "backend": args.backend, "overlap": f"camera centres <= {OVERLAP_M} m, optical axes <= {OVERLAP_DEG} deg",
+        "backend": args.backend, "joint": args.joint,
+        "overlap": f"camera centres <= {OVERLAP_M} m, optical axes <= {OVERLAP_DEG} deg",
         "closure_correct": f"<= {CORRECT_M} m and {CORRECT_DEG} deg", "configurations": configurations,
         "targets_met": all(c["targets_met"] for c in configurations), "wall_s": round(time.perf_counter() - t0, 1),
         "cpu_s": round(time.process_time(), 1),
@@ -796,6 +949,13 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=10.0)
     parser.add_argument("--scene", default="procedural", choices=("procedural", "photographic"))
     parser.add_argument("--backend", default="linkers", choices=sorted(FLEET_BACKENDS), help=argparse.SUPPRESS)
+    # The peer runs (each agent alone) are the same in every run: a second run may skip them (own_ate_alone_m null).
+    parser.add_argument("--no-alone", dest="alone", action="store_false", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--joint", action="store_true",
+        help="also place the agents by the fleet back-end's joint optimisation (FleetGraph, GNC) in the same run: "
+        "its figures under 'joint' in each configuration",
+    )  # fmt: skip
     parser.add_argument("--out", default="results/benchmarks")
     args = parser.parse_args()
     print(json.dumps(run(args)), flush=True)

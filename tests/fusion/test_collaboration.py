@@ -21,7 +21,8 @@ from ..slam.textured_room import make_textures
 CAMERA = Intrinsics(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
 #: The peer's map frame in this agent's (what the agents must find).
 PEER_MAP = pose_from_xyz_rpy(3.0, -1.0, 0.0, 0.0, 0.0, np.radians(-120.0))
-PLACES = [(-1.0, -1.0, 0.0), (1.0, -1.0, 90.0), (1.0, 1.0, 180.0), (-1.0, 1.0, 270.0)]
+PLACES = [(-1.0, -1.0, 225.0), (1.0, -1.0, 315.0), (1.0, 1.0, 45.0), (-1.0, 1.0, 135.0)]
+"""Views into the nearest corner of the room (two walls: a view of one plane is not believed)."""
 
 
 def test_a_peer_map_frame_is_found_from_closures_at_several_places() -> None:

@@ -76,6 +76,31 @@ def test_one_place_seen_many_times_is_not_enough() -> None:
     assert "place" in decision.reason
 
 
+def test_places_on_either_side_count_for_a_judge_of_both_agents() -> None:
+    """This agent turns on one spot while the peer passes it: one place of this agent's, three of the peer's. Its own
+    test waits; the peer's (the same closures seen from the other side) accepts; the fleet back-end, judging both
+    agents' closures, accepts as the peer does."""
+    rng = np.random.default_rng(4)
+    closures = []
+    for yaw, ahead in [(0.0, 1.0), (0.6, 2.0), (1.2, 3.0)]:
+        own_pose = pose_from_xyz_rpy(1.0, 1.0, 0.3, 0.0, 0.0, yaw)
+        peer_in_own = own_pose @ pose_from_xyz_rpy(0.0, 0.0, ahead, 0.0, 0.0, 0.1)
+        noise = pose_from_xyz_rpy(*rng.normal(0.0, 0.01, 3), *rng.normal(0.0, np.radians(0.3), 3))
+        peer_pose = invert(TRUE_ALIGNMENT) @ peer_in_own @ noise
+        closures.append(PairClosure(next(IDS), next(IDS), own_pose, peer_pose, invert(own_pose) @ peer_in_own))
+    own_side, peer_side, both_sides = ClosureSet(), ClosureSet(), ClosureSet(places_either_side=True)
+    for c in closures:
+        own_side.add(c)
+        peer_side.add(PairClosure(c.peer_id, c.own_id, c.peer_pose, c.own_pose, invert(c.relative)))
+        both_sides.add(c)
+    assert own_side.decide().alignment is None and "place" in own_side.decide().reason
+    assert peer_side.decide().alignment is not None, peer_side.decide().reason
+    decision = both_sides.decide()
+    assert decision.alignment is not None, decision.reason
+    error = invert(TRUE_ALIGNMENT) @ decision.alignment
+    assert np.linalg.norm(error[:3, 3]) < 0.1
+
+
 def test_repeated_shelves_along_an_aisle_are_never_accepted() -> None:
     """Walking an aisle, the peer's keyframes match the next module as well as the right one: two consistent
     sets of the same size. Nothing is accepted until places outside the aisle tell them apart, and then the

@@ -46,9 +46,17 @@ def assert_close(estimate: np.ndarray | None, expected: np.ndarray) -> None:
     assert np.degrees(rotation_angle(error)) < 1.0
 
 
+CORNER_HEADING = 0.55
+"""Heading (rad) of the robots: their cameras look into the room's (+x, +y) corner, two walls (a peer's view of one
+plane is not believed)."""
+
+
 def drive(x0: float, x1: float, y: float, count: int) -> list[np.ndarray]:
-    """Camera poses of a robot driving along x (its camera looking along +x at the room's far wall)."""
-    return [pose_from_planar(x0 + (x1 - x0) * k / (count - 1), y, 0.0) @ BASE_CAMERA for k in range(count)]
+    """Camera poses of a robot starting at (``x0``, ``y``) and driving ``x1 - x0`` metres along its heading
+    (:data:`CORNER_HEADING`; backwards when negative), its camera looking into the far corner."""
+    c, s = np.cos(CORNER_HEADING), np.sin(CORNER_HEADING)
+    steps = [(x1 - x0) * k / (count - 1) for k in range(count)]
+    return [pose_from_planar(x0 + d * c, y + d * s, CORNER_HEADING) @ BASE_CAMERA for d in steps]
 
 
 def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_restart(

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from fleetslam.geometry import invert, rotation_angle, translation_distance
-from fleetslam.slam.loop_closure import GeometricVerifier, LoopClosureDetector, make_loop_closure_detector
+from fleetslam.slam.loop_closure import (
+    GeometricVerifier,
+    LoopClosureDetector,
+    make_loop_closure_detector,
+    off_plane_count,
+)
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.signature import LinkType, Signature
 
@@ -189,3 +194,15 @@ def test_retrieval_brings_ltm_neighbours_back_for_the_next_loop() -> None:
     assert not set(hyp.retrieved) & set(hyp.transferred)
     hyp = feed(detector, rng, places[target - 2], revisit_pose(places[target - 2]), 101.0)
     assert hyp.accepted and hyp.match_id == target - 1, hyp
+
+
+def test_off_plane_count_finds_the_points_off_the_plane_holding_most() -> None:
+    rng = np.random.default_rng(5)
+    floor = np.column_stack([rng.uniform(-2, 2, 60), rng.uniform(0.5, 4, 60), np.full(60, 1.2)])
+    floor[:, 2] += rng.normal(0.0, 0.005, 60)  # depth noise
+    shelf = np.column_stack([rng.uniform(-2, 2, 9), np.full(9, 3.0), rng.uniform(-0.5, 1.0, 9)])
+    assert off_plane_count(floor, 0.05) == 0
+    assert off_plane_count(np.vstack([floor, shelf]), 0.05) == 9
+    tilted = floor @ np.array([[1.0, 0.0, 0.0], [0.0, 0.8, -0.6], [0.0, 0.6, 0.8]]).T  # any plane, not only z = c
+    assert off_plane_count(np.vstack([tilted, shelf[:3]]), 0.05) == 3
+    assert off_plane_count(shelf[:3], 0.05) == 0  # three points always lie on a plane

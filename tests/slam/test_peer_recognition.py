@@ -1,5 +1,6 @@
 """A peer's keyframe, summarised as on the wire, is recognised in this agent's memory and verified: rendered views
-of a textured room, real ORB features, a peer with another camera."""
+of a textured room, real ORB features, a peer with another camera; a view of a tiled floor one tile further on is
+not taken for the same place."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ from fleetslam.slam.frontend import KeyframeFeatures, KeyframeObservation
 from fleetslam.slam.loop_closure import GeometricVerifier, make_loop_closure_detector
 from fleetslam.slam.loop_config import LoopClosureConfig, MemoryConfig
 from fleetslam.slam.odometry import backproject
-from fleetslam.slam.peer_recognition import PeerPlaceRecognizer, make_peer_recognizer
+from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, PeerPlaceRecognizer, make_peer_recognizer
 
-from .textured_room import make_textures, render
+from .textured_room import HALF_SIZE, TEXELS, make_textures, render
 
 OWN = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 PEER = Intrinsics(fx=300.0, fy=300.0, cx=161.0, cy=118.0, width=320, height=240)
@@ -51,11 +52,12 @@ def own_memory(textures: list[np.ndarray], poses: list[np.ndarray]):
 
 def test_a_peer_view_of_a_known_place_is_recognised_with_its_transform() -> None:
     textures = make_textures(np.random.default_rng(3))
-    own_poses = [camera_pose(-1.0, 0.0, yaw) for yaw in (0.0, 90.0, 180.0, 270.0)]
+    # Views into the room's corners: two walls each (a view of one plane only is not believed, see below).
+    own_poses = [camera_pose(0.0, 0.0, yaw) for yaw in (45.0, 135.0, 225.0, 315.0)]
     memory, ids = own_memory(textures, own_poses)
     recognizer = make_peer_recognizer(LoopClosureConfig(), memory, OWN.K)
 
-    peer_pose_in_own_world = camera_pose(-0.6, 0.3, 100.0)  # near the view along +y, another camera
+    peer_pose_in_own_world = camera_pose(-0.3, 0.2, 130.0)  # near the view of the (-x, +y) corner, another camera
     keypoints, points, descriptors = features_of(peer_pose_in_own_world, PEER, textures)
     peer_map_pose = make_pose(np.eye(3), [5.0, -2.0, 0.0]) @ peer_pose_in_own_world  # the peer's own frame
     summary = summarize("r2d2", 7, 0, peer_map_pose, PEER, keypoints, points, descriptors)
@@ -68,6 +70,38 @@ def test_a_peer_view_of_a_known_place_is_recognised_with_its_transform() -> None
     error = invert(truth) @ result.match.relative
     assert np.linalg.norm(error[:3, 3]) < 0.03
     assert np.degrees(rotation_angle(error)) < 1.0
+    assert result.match.off_plane >= MIN_OFF_PLANE_INLIERS
+
+
+LOOKING_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+"""Camera optical axes looking straight down at the floor."""
+
+
+def tiled_floor_room(tile_texels: int) -> tuple[list[np.ndarray], float]:
+    """The room with its floor a repeated tile (the plant's floor texture repeats every 2 m): textures, period (m)."""
+    textures = make_textures(np.random.default_rng(3))
+    floor = textures[4]  # the face at z = -HALF_SIZE
+    textures[4] = np.tile(floor[:tile_texels, :tile_texels], (TEXELS // tile_texels, TEXELS // tile_texels))
+    return textures, tile_texels * 2 * HALF_SIZE / (TEXELS - 1)
+
+
+def test_a_view_of_a_tiled_floor_one_period_further_is_not_taken_for_the_same_place() -> None:
+    textures, period = tiled_floor_room(128)
+    floor_view = make_pose(LOOKING_DOWN, [-0.6, 0.0, 0.2])  # sees the floor only, 2.7 m below
+    memory, ids = own_memory(textures, [floor_view] + [camera_pose(0.0, 0.0, yaw) for yaw in (45.0, 135.0, 225.0)])
+    peer_pose = make_pose(LOOKING_DOWN, [-0.6 + period, 0.0, 0.2])  # the same image, one tile further on
+    keypoints, points, descriptors = features_of(peer_pose, OWN, textures)
+    summary = summarize("r2d2", 3, 0, peer_pose, OWN, keypoints, points, descriptors)
+
+    # Without the check the closure passes PnP both ways, with the floor view and exactly one period off.
+    unchecked = make_peer_recognizer(LoopClosureConfig(), memory, OWN.K, min_off_plane=0).recognize(summary)
+    assert unchecked.match is not None and unchecked.match.own_id == ids[0], unchecked.reasons
+    error = invert(invert(floor_view) @ peer_pose) @ unchecked.match.relative
+    assert abs(np.linalg.norm(error[:3, 3]) - period) < 0.05
+
+    result = make_peer_recognizer(LoopClosureConfig(), memory, OWN.K).recognize(summary)
+    assert result.match is None
+    assert any(f"{ids[0]}: 0 inliers off their dominant plane" in reason for reason in result.reasons), result.reasons
 
 
 def test_a_view_of_another_room_is_not_recognised() -> None:

@@ -39,7 +39,7 @@ from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
 from fleetslam.fusion.keyframe_summary import KeyframeSummary
 from fleetslam.fusion.summary_catchup import SummaryCatchUp
 from fleetslam.geometry import invert
-from fleetslam.slam.peer_recognition import PeerMatch, PeerPlaceRecognizer
+from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, PeerMatch, PeerPlaceRecognizer
 
 Pose = NDArray[np.float64]
 
@@ -51,6 +51,9 @@ class CollaborationConfig(ConfigModel):
     """Features per keyframe sent to peers (with depth, spread over the image): ~38 bytes each."""
     max_verifications: int = Field(default=2, ge=1)
     """Own locations verified (PnP both ways) per peer keyframe, the best scored first."""
+    min_off_plane_inliers: int = Field(default=MIN_OFF_PLANE_INLIERS, ge=0)
+    """PnP inliers of a peer match that must lie off the plane holding most of them (0: no check): a tiled floor
+    gives closures shifted by its period that agree with each other."""
     budget_ms: float = Field(default=15.0, gt=0.0)
     """Time the node gives peer keyframes between two of its own frames; the rest wait in the queue."""
     max_queued: int = Field(default=30, ge=1)

@@ -146,6 +146,9 @@ class ClosureSet:
     """Places among the inliers' own keyframes, counted ``place_spacing_m`` apart: one place seen several times is
     one piece of evidence."""
     place_spacing_m: float = 0.5
+    places_either_side: bool = False
+    """Count the places on the peer's keyframes too, and take the larger count: for a judge of both agents' closures
+    (the fleet back-end), which connects a pair when either agent's own test would."""
     dominance: float = 2.0
     """The consistent set must be this many times larger than the largest set inconsistent with it."""
     max_closures: int = 64
@@ -180,6 +183,10 @@ class ClosureSet:
         } - set(inliers)
         rival = len(maximum_clique(self._adjacency, outsiders)) if outsiders else 0
         places = _distinct_places([self.closures[i].own_pose[:3, 3] for i in inliers], self.place_spacing_m)
+        if self.places_either_side:
+            places = max(
+                places, _distinct_places([self.closures[i].peer_pose[:3, 3] for i in inliers], self.place_spacing_m)
+            )
         if len(inliers) < self.min_inliers:
             return Decision(None, inliers, rival, f"{len(inliers)} consistent closures (< {self.min_inliers})")
         if places < self.min_places:

@@ -16,7 +16,8 @@ configured, by default the alphabetically first agent):
 
 Only agents connected to the reference by closures are placed. A pair of agents is connected once its closures
 pass the pairwise-consistency test the agents use themselves (:class:`~fleetslam.fusion.consistency.ClosureSet`:
-enough mutually consistent closures, at more than one place, unrivalled); its rigid fit places a newly connected
+enough mutually consistent closures, at more than one place of either agent, unrivalled: each agent counts the
+places on its own keyframes, and the pair is connected when either would be); its rigid fit places a newly connected
 agent (initial values), after which the previous solution warm-starts every solve.
 
 Incremental and budgeted: :meth:`FleetGraph.solve` does nothing when no graph changed since the last solve; GNC
@@ -260,7 +261,7 @@ class FleetGraph:
             if closure_set is None:
                 closure_set = self._pairs[pair] = ClosureSet(
                     tolerance=self.tolerance, min_inliers=self.min_closures, min_places=self.min_places,
-                    dominance=self.dominance,
+                    dominance=self.dominance, places_either_side=True,
                 )  # fmt: skip
             own, peer = self.agents[closure.a].mirror.poses, self.agents[closure.b].mirror.poses
             if closure_set.add(PairClosure(closure.a_id, closure.b_id, own[closure.a_id], peer[closure.b_id],

@@ -65,6 +65,8 @@ class VerificationResult:
     """Word correspondences with a valid 3D point fed to PnP."""
     reason: str
     """"accepted" or why it was rejected."""
+    off_plane: int = 0
+    """Forward PnP inliers off the plane that holds most of them (0 when rejected before they are counted)."""
 
     @property
     def accepted(self) -> bool:
@@ -121,9 +123,14 @@ class GeometricVerifier:
         correspondences: str = "descriptors",
         nndr_ratio: float = 0.8,
         max_disagreement: tuple[float, float] | None = (0.05, np.radians(2.0)),
+        min_off_plane: int = 0,
+        plane_tolerance: float = 0.05,
     ) -> None:
         """``camera_to_base`` is ``T_base_camera`` (identity when poses are camera poses);
-        ``max_disagreement`` is (metres, radians) between the two PnP directions, None to skip that check."""
+        ``max_disagreement`` is (metres, radians) between the two PnP directions, None to skip that check;
+        ``min_off_plane``: inliers that must lie farther than ``plane_tolerance`` (m) from the plane holding most of
+        them (0: no such check). A plane with a periodic texture (floor tiles) admits PnP solutions shifted by the
+        period, in both directions alike; points off that plane pin the shift."""
         if correspondences not in ("descriptors", "words"):
             raise SlamError(
                 f"loop verification: correspondences must be 'descriptors' or 'words', got {correspondences!r}"
@@ -137,6 +144,8 @@ class GeometricVerifier:
         self.mode = correspondences
         self.nndr_ratio = nndr_ratio
         self.max_disagreement = max_disagreement
+        self.min_off_plane = min_off_plane
+        self.plane_tolerance = plane_tolerance
         self.planar_mounting: NDArray[np.float64] | None = None
         """T_base_camera of a ground robot: transforms are then solved for x, y and yaw of the base only."""
 
@@ -249,8 +258,33 @@ class GeometricVerifier:
                 return VerificationResult(
                     None, count, n, f"the two PnP directions disagree by {metres:.3f} m, {np.degrees(radians):.2f} deg"
                 )
+        off_plane = off_plane_count(candidate_points[valid][forward_inliers], self.plane_tolerance)
+        if off_plane < self.min_off_plane:
+            return VerificationResult(
+                None, count, n, f"{off_plane} inliers off their dominant plane (< {self.min_off_plane})", off_plane
+            )
         transform = self.base_camera @ candidate_from_query @ invert(self.base_camera)
-        return VerificationResult(transform, count, n, "accepted")
+        return VerificationResult(transform, count, n, "accepted", off_plane)
+
+
+def off_plane_count(points: NDArray[np.float64], tolerance: float, *, trials: int = 200) -> int:
+    """How many of ``points`` lie farther than ``tolerance`` from the plane that holds the most of them (RANSAC over
+    triples, seeded: deterministic); 0 for fewer than four (they always lie on one plane)."""
+    n = len(points)
+    if n < 4:
+        return 0
+    rng = np.random.default_rng(0)
+    triples = rng.integers(0, n, size=(trials, 3))
+    a, b, c = points[triples[:, 0]], points[triples[:, 1]], points[triples[:, 2]]
+    normals = np.cross(b - a, c - a)
+    lengths = np.linalg.norm(normals, axis=1)
+    good = lengths > 1e-9
+    if not good.any():
+        return 0  # all on one line (or one point): no more than a plane
+    normals = normals[good] / lengths[good, None]
+    offsets = np.einsum("kj,kj->k", normals, a[good])
+    on_plane = np.abs(points @ normals.T - offsets) <= tolerance
+    return int(n - on_plane.sum(axis=0).max())
 
 
 class LoopClosureDetector:

@@ -464,7 +464,8 @@ class SlamNode:
         if (self.linker.queue or self.linker.shared) and self.pipeline.loop_closure:
             if self._recognizer is None:
                 self._recognizer = self.pipeline.peer_recognizer(
-                    max_verifications=self.config.collaboration.max_verifications
+                    max_verifications=self.config.collaboration.max_verifications,
+                    min_off_plane=self.config.collaboration.min_off_plane_inliers,
                 )
             before = sum(state.recognised for state in self.linker.peers.values())
             matches = self.linker.step(self._recognizer, self.pipeline.keyframe_poses())

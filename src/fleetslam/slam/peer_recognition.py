@@ -4,10 +4,12 @@ A peer's :class:`~fleetslam.fusion.keyframe_summary.KeyframeSummary` is quantise
 vocabulary (without adding words: a peer's view must not grow our dictionary) and scored by TF-IDF against the
 locations in RAM (short-term and working memory), as the agent's own loop closure scores a new keyframe. The best
 few candidates, within a budget, are verified as the agent verifies its own loops: descriptor matches, PnP RANSAC
-from the candidate's 3D points into the peer's image and back the other way, the two directions agreeing. The
-transform is full 6-DoF between the two cameras (the peer's mounting is not known here). The peer's keypoints
-are first expressed in this camera's pixels (``K_own · K_peer⁻¹``, exact for undistorted pinhole cameras), so
-robots with different cameras recognise each other.
+from the candidate's 3D points into the peer's image and back the other way, the two directions agreeing; and,
+unlike its own loops, with enough inliers off the plane that holds most of them (:data:`MIN_OFF_PLANE_INLIERS`:
+a tiled floor admits solutions shifted by its period). The transform is full 6-DoF between the two cameras (the
+peer's mounting is not known here). The peer's keypoints are first expressed in this camera's pixels
+(``K_own · K_peer⁻¹``, exact for undistorted pinhole cameras), so robots with different cameras recognise each
+other.
 
 Pure: the caller owns the memory and calls :meth:`PeerPlaceRecognizer.recognize` from the thread that updates it.
 """
@@ -26,6 +28,13 @@ from fleetslam.slam.loop_config import LoopClosureConfig
 from fleetslam.slam.memory import Memory
 from fleetslam.slam.signature import Signature
 
+MIN_OFF_PLANE_INLIERS = 8
+"""Inliers of a peer match that must lie off the plane holding most of them (5 cm away or more). A plane with a
+periodic texture (floor tiles) gives PnP solutions shifted by whole periods that both directions confirm alike, and
+several such closures agree with each other, so pairwise consistency cannot reject them either; points off that
+plane (shelves, walls, posts) pin the shift. A match on one plane only is dropped, right or wrong: the agents wait
+for a view with depth. (An agent's own loops keep a prior from odometry and are not checked this way.)"""
+
 
 @dataclass(frozen=True)
 class PeerMatch:
@@ -39,6 +48,8 @@ class PeerMatch:
     relative: NDArray[np.float64]
     """``T_owncamera_peercamera``."""
     inliers: int
+    off_plane: int = 0
+    """Inliers off the plane that holds most of them (the floor, often)."""
 
 
 @dataclass(frozen=True)
@@ -147,7 +158,13 @@ class PeerPlaceRecognizer:
             reasons.append(f"{location_id}: {result.reason}")
             if result.transform is not None:
                 match = PeerMatch(
-                    location_id, summary.agent, summary.keyframe_id, score, result.transform, result.inliers
+                    location_id,
+                    summary.agent,
+                    summary.keyframe_id,
+                    score,
+                    result.transform,
+                    result.inliers,
+                    result.off_plane,
                 )
                 return RecognitionResult(match, tried, reasons)
         if not tried:
@@ -156,10 +173,16 @@ class PeerPlaceRecognizer:
 
 
 def make_peer_recognizer(
-    loop: LoopClosureConfig, memory: Memory, camera_matrix: NDArray[np.float64], *, max_verifications: int = 2
+    loop: LoopClosureConfig,
+    memory: Memory,
+    camera_matrix: NDArray[np.float64],
+    *,
+    max_verifications: int = 2,
+    min_off_plane: int = MIN_OFF_PLANE_INLIERS,
 ) -> PeerPlaceRecognizer:
     """A recognizer over ``memory`` that verifies as the agent's own loop closure does (same inlier count,
-    reprojection error, both PnP directions), between camera frames."""
+    reprojection error, both PnP directions), between camera frames, and rejects a match with fewer than
+    ``min_off_plane`` inliers off the plane that holds most of them (see :data:`MIN_OFF_PLANE_INLIERS`)."""
     verifier = GeometricVerifier(
         camera_matrix,
         None,
@@ -174,5 +197,6 @@ def make_peer_recognizer(
             if loop.max_direction_disagreement > 0
             else (0.05, float(np.radians(2.0)))
         ),
+        min_off_plane=min_off_plane,
     )
     return PeerPlaceRecognizer(memory, verifier, max_verifications=max_verifications)

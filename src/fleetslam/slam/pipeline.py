@@ -173,16 +173,20 @@ class SlamPipeline:
             return np.zeros(0, np.int64), np.zeros(0, np.float64)
         return self._detector.bag_of_words(keyframe_id)
 
-    def peer_recognizer(self, *, max_verifications: int = 2) -> PeerPlaceRecognizer | None:
+    def peer_recognizer(
+        self, *, max_verifications: int = 2, min_off_plane: int | None = None
+    ) -> PeerPlaceRecognizer | None:
         """A recognizer of other agents' keyframes in this pipeline's memory, verifying as its own loop closure does
-        (None without loop closure). Call it, and use it, from the thread that steps the pipeline."""
+        (None without loop closure); ``min_off_plane``: see :func:`make_peer_recognizer` (None: its default). Call
+        it, and use it, from the thread that steps the pipeline."""
         if self._detector is None:
             return None
-        from fleetslam.slam.peer_recognition import make_peer_recognizer
+        from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, make_peer_recognizer
 
         return make_peer_recognizer(
-            self.config.loop_closure, self._detector.memory, self.intrinsics.K, max_verifications=max_verifications
-        )
+            self.config.loop_closure, self._detector.memory, self.intrinsics.K, max_verifications=max_verifications,
+            min_off_plane=MIN_OFF_PLANE_INLIERS if min_off_plane is None else min_off_plane,
+        )  # fmt: skip
 
     def constraints(self) -> list[Constraint]:
         """Every odometry and loop constraint of the pose graph."""
