@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from fleetslam.middleware import Context
 from fleetslam.station.server import StationServer
@@ -26,6 +27,9 @@ def test_console_in_chromium(
         first_frame = page.evaluate("window.fleetslam.lastFrameSeq")
         page.wait_for_function(f"window.fleetslam.lastFrameSeq > {first_frame}", timeout=10000)
         assert page.evaluate("window.fleetslam.selected") == "c3po"
+        # The robot's whole block (20 × 10 × 3 voxels, sent growing as binary deltas) is drawn, voxel for voxel.
+        page.wait_for_function("window.fleetslam.voxelCount === 600", timeout=20000)
+        page.wait_for_function("document.getElementById('link-text').textContent.startsWith('link ok')", timeout=5000)
         # The test browser draws with SwiftShader (no GPU): the view must know it and spare the CPU.
         assert page.evaluate("window.fleetslam.softwareGL") is True
         # Hold the deadman (Space) and W: forward commands reach the robot.
@@ -50,4 +54,18 @@ def test_console_in_chromium(
         closed = time.time()
         time.sleep(1.0)
         assert not [c for c in test_robot.commands if c[0] > closed + 0.5 and c[1] != 0.0]  # as after the release
+    assert not errors, errors
+
+
+def test_link_reads_lost_within_two_seconds_of_the_server_stopping(
+    browser_page: Any, make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    page, errors = browser_page
+    server = StationServer(make_context(), port=0)
+    with server:
+        page.goto(server.url)
+        page.wait_for_function("document.getElementById('link-text').textContent.startsWith('link ok')", timeout=20000)
+    stopped = time.monotonic()
+    page.wait_for_function("document.getElementById('link-text').textContent === 'link lost'", timeout=5000)
+    assert time.monotonic() - stopped < 2.0
     assert not errors, errors

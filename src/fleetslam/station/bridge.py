@@ -180,16 +180,10 @@ class StationBridge:
         added, removed = view.voxels.update(points)
         if len(added) or len(removed):
             self.emit(
-                {
-                    "type": "voxels",
-                    "agent": view.name,
-                    "size": self.voxel_resolution,
-                    "add": np.round(added, 3).tolist(),
-                    "remove": np.round(removed, 3).tolist(),
-                    "total": len(view.voxels),
-                },
+                {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": added,
+                 "remove": removed, "total": len(view.voxels)},
                 None,
-            )
+            )  # fmt: skip
 
     def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
         if source == "slam":
@@ -324,11 +318,11 @@ class StationBridge:
         """Messages that bring a new browser up to date."""
         out: list[dict[str, Any]] = [{"type": "agents", "agents": self.agent_names()}]
         for view in list(self.agents.values()):
-            voxels = view.voxels.snapshot()
-            if len(voxels):
+            keys = view.voxels.keys()
+            if len(keys):
                 out.append(
-                    {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": voxels.tolist(),
-                     "remove": [], "total": len(voxels), "reset": True}
+                    {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": keys,
+                     "remove": keys[:0], "total": len(keys), "reset": True}
                 )  # fmt: skip
             for source, pose in view.poses.items():
                 out.append({"type": "pose", "agent": view.name, "source": source, **pose})

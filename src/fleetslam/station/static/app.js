@@ -5,7 +5,7 @@ import { OrbitControls } from "/static/vendor/OrbitControls.js";
 const COLORS = ["#39b5ff", "#ff7a45", "#3ddc84", "#c77dff", "#ffd166", "#ef476f"];
 const state = {
   socket: null, agents: [], selected: null, camera: "rgb", limits: { max_linear: 0.5, max_angular: 1.2 },
-  rtt: null, lastPong: 0, voxelCount: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
+  rtt: null, lastPong: 0, voxelCount: 0, renders: 0, voxelMessages: 0, received: 0, acked: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
   deadman: { key: false, button: false, pad: false }, keys: new Set(), stick: { v: 0, w: 0 }, estop: false,
 };
 window.fleetslam = state; // for tests and the curious
@@ -69,7 +69,7 @@ function heightColor(z, out) {
 function view(agent) {
   let v = agentViews.get(agent);
   if (v) return v;
-  v = { voxels: new Map(), cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
+  v = { voxels: new Set(), cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
   agentViews.set(agent, v);
   return v;
 }
@@ -185,6 +185,9 @@ state.frameOf = (agent, point = [0, 0, 0]) => {
 // Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
 // a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
 // lit triangles each took most of a core at ten frames a second; a sprite is one quad.
+// Voxels arrive as indices (i, j, k) in binary messages (centre: (index + 1/2) · size); kept as one number each.
+const KEY_OFFSET = 65536, KEY_BASE = 131072; // 17 bits per axis: ±3.2 km at 5 cm, well within a double's 53 bits
+const voxelKey = (i, j, k) => ((i + KEY_OFFSET) * KEY_BASE + (j + KEY_OFFSET)) * KEY_BASE + (k + KEY_OFFSET);
 function rebuildVoxels(agent, v) {
   if (v.cloud) { v.cloud.removeFromParent(); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
   const n = v.voxels.size;
@@ -193,8 +196,12 @@ function rebuildVoxels(agent, v) {
   const frame = frameOf(agent);
   frame.updateWorldMatrix(true, false);
   const e = frame.matrixWorld.elements; // coloured by height as drawn (a map frame's z may be ahead, not up)
+  const size = v.size;
   let i = 0;
-  for (const [x, y, z] of v.voxels.values()) {
+  for (const key of v.voxels) {
+    const k = (key % KEY_BASE) - KEY_OFFSET, rest = Math.floor(key / KEY_BASE);
+    const y = ((rest % KEY_BASE) - KEY_OFFSET + 0.5) * size, x = (Math.floor(rest / KEY_BASE) - KEY_OFFSET + 0.5) * size;
+    const z = (k + 0.5) * size;
     positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
     heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], c);
     colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
@@ -213,15 +220,19 @@ function rebuildVoxels(agent, v) {
   v.cloud = points;
   v.dirty = false;
 }
-function onVoxels(msg) {
+// A binary voxel message (fleetslam.station.protocol.VoxelUpdate.encode): u32 header length, JSON header, int32
+// indices of the added voxels, then of the removed ones.
+function onVoxels(buffer) {
+  const length = new DataView(buffer).getUint32(0, true);
+  const msg = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+  const indices = new Int32Array(buffer, 4 + length);
   const v = view(msg.agent);
   v.size = msg.size;
   if (msg.reset) v.voxels.clear();
-  // A voxel centre is at (k + 1/2)·size: rounding met two neighbours at the tie (and half the map vanished).
-  const key = (p) => p.map((x) => Math.floor(x / msg.size)).join(",");
-  for (const p of msg.remove) v.voxels.delete(key(p));
-  for (const p of msg.add) v.voxels.set(key(p), p);
+  for (let n = 3 * msg.add, end = 3 * (msg.add + msg.remove); n < end; n += 3) v.voxels.delete(voxelKey(indices[n], indices[n + 1], indices[n + 2]));
+  for (let n = 0, end = 3 * msg.add; n < end; n += 3) v.voxels.add(voxelKey(indices[n], indices[n + 1], indices[n + 2]));
   v.dirty = true;
+  state.voxelMessages += 1;
 }
 function lineFor(points, color, dashed) {
   const geometry = new THREE.BufferGeometry().setFromPoints(points.map((p) => new THREE.Vector3(p[0], p[1], p[2] + 0.02)));
@@ -355,6 +366,7 @@ function animate(now) {
   state.sceneChanged = false;
   lastRender = now;
   renderer.render(scene, camera3d);
+  state.renders += 1;
 }
 requestAnimationFrame(animate);
 
@@ -736,6 +748,21 @@ renderer.domElement.addEventListener("pointerup", (e) => {
 
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
+// The server sends the bulk streams only while this page keeps up: it keeps at most a window of them unacknowledged
+// (newest only meanwhile), so a pong never waits behind a backlog of images and maps in a busy page.
+const BULK_TYPES = new Set(["image", "pose", "path", "keyframes", "stats", "voxels"]);
+const ACK_EVERY = 32 * 1024;
+function handled(size, bulk) {
+  if (!bulk) return;
+  state.received += size;
+  if (state.received - state.acked >= ACK_EVERY) ack();
+}
+function ack() {
+  if (state.received === state.acked) return;
+  state.acked = state.received;
+  send({ type: "ack", bytes: state.received });
+}
+setInterval(ack, 100);
 function connect() {
   // The console's token comes with the URL it printed; kept for reloads of this tab, passed on to the WebSocket.
   const token = new URLSearchParams(location.search).get("token") || sessionStorage.getItem("fleetslam-token") || "";
@@ -743,8 +770,14 @@ function connect() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
   const socket = new WebSocket(`${scheme}://${location.host}/ws?token=${encodeURIComponent(token)}`);
   state.socket = socket;
+  socket.binaryType = "arraybuffer";
   socket.onmessage = (event) => {
+    if (typeof event.data !== "string") { // binary: voxels, a bulk stream
+      onVoxels(event.data); state.sceneChanged = true; handled(event.data.byteLength, true);
+      return;
+    }
     const msg = JSON.parse(event.data);
+    handled(event.data.length, BULK_TYPES.has(msg.type));
     if (findingsOnMessage(msg)) return;
     switch (msg.type) {
       case "hello":
@@ -758,7 +791,6 @@ function connect() {
         renderAgents();
         placeFrames();
         break;
-      case "voxels": onVoxels(msg); state.sceneChanged = true; break;
       case "pose": onPose(msg); state.sceneChanged = true; break;
       case "path": onPath(msg); state.sceneChanged = true; break;
       case "keyframes": onKeyframes(msg); state.sceneChanged = true; break;
@@ -767,18 +799,30 @@ function connect() {
       case "stats": onStats(msg); break;
       case "pong":
         state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
+        if (document.getElementById("link-text").textContent === "connecting…") showLink();
         break;
       case "estop": if (!msg.ok) console.warn("e-stop:", msg.message); break;
     }
   };
-  socket.onopen = () => { if (state.selected) send({ type: "select", agent: state.selected }); send({ type: "camera", kind: state.camera }); };
-  socket.onclose = () => { state.rtt = null; setTimeout(connect, 1000); };
+  socket.onopen = () => {
+    state.received = state.acked = 0; // counted per connection
+    ping();
+    if (state.selected) send({ type: "select", agent: state.selected });
+    send({ type: "camera", kind: state.camera });
+  };
+  socket.onclose = () => { state.rtt = null; showLink(); setTimeout(connect, 1000); };
 }
-setInterval(() => {
+// The link is "ok" while pongs come back within 3 s, "connecting" until the first one of a connection.
+function ping() {
   send({ type: "ping", t: performance.now() });
+  showLink();
+}
+function showLink() {
   const link = document.getElementById("link"), text = document.getElementById("link-text");
-  const fresh = state.socket && state.socket.readyState === 1 && state.rtt !== null && performance.now() - state.lastPong < 3000;
+  const open = state.socket && state.socket.readyState === 1;
+  const fresh = open && state.rtt !== null && performance.now() - state.lastPong < 3000;
   link.className = "link" + (fresh ? (state.rtt > 150 ? " slow" : " ok") : "");
-  text.textContent = fresh ? `link ok · RTT ${state.rtt.toFixed(1)} ms` : "link lost";
-}, 1000);
+  text.textContent = fresh ? `link ok · RTT ${state.rtt.toFixed(1)} ms` : open && state.rtt === null ? "connecting…" : "link lost";
+}
+setInterval(ping, 1000);
 connect();
