@@ -174,7 +174,7 @@ def test_a_page_that_falls_behind_gets_pongs_at_once_and_the_newest_data_after(
                     while (left := end - time.monotonic()) > 0:
                         try:
                             frame = await ws.receive(timeout=left)
-                        except asyncio.TimeoutError:
+                        except TimeoutError:
                             return
                         if frame.type == aiohttp.WSMsgType.BINARY:
                             bulk += len(frame.data)

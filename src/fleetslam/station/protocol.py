@@ -19,7 +19,8 @@ browser → server
   ``ping`` {t}; ``ack`` {bytes}: how much of the bulk streams (images, voxels, poses, paths, keyframes, statistics:
   text messages count their characters, binary ones their bytes) the page has handled; the server keeps at most
   :data:`fleetslam.station.server.BULK_WINDOW` unacknowledged, keeps only the newest of each stream meanwhile
-  (voxels: merged), and sends control messages (pong, replies) first; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
+  (voxels: merged), and sends control messages (pong, replies) first; ``select`` {agent}; ``camera`` {kind};
+  ``drive`` {agent, v, w, deadman};
   ``estop`` {agent, engage}; ``finding_pick`` {agent, stamp, u, v}; ``finding_create`` {pick, title, severity,
   note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}; ``measure_pick``
   {agent, stamp, u, v}
@@ -36,7 +37,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-
 KEY_BITS = 21
 """Bits per axis of a packed voxel key: ±2²⁰ voxels (±52 km at 5 cm) each way."""
 _KEY_OFFSET = 1 << (KEY_BITS - 1)
@@ -52,9 +52,9 @@ def pack_keys(indices: NDArray[np.int64]) -> NDArray[np.int64]:
 def unpack_keys(keys: NDArray[np.int64]) -> NDArray[np.int64]:
     """Packed keys back to voxel indices ``(n, 3)``."""
     keys = np.asarray(keys, dtype=np.int64)
-    return np.stack([(keys >> (2 * KEY_BITS)) & _KEY_MASK, (keys >> KEY_BITS) & _KEY_MASK, keys & _KEY_MASK], axis=1) - (
-        _KEY_OFFSET
-    )
+    return np.stack(
+        [(keys >> (2 * KEY_BITS)) & _KEY_MASK, (keys >> KEY_BITS) & _KEY_MASK, keys & _KEY_MASK], axis=1
+    ) - (_KEY_OFFSET)
 
 
 class VoxelDiff:
