@@ -355,7 +355,7 @@ def finding_json(finding: Finding) -> dict[str, Any]:
         "id": finding.id, "title": finding.title, "severity": finding.severity, "status": finding.status,
         "note": finding.note, "agent": finding.agent, "keyframe_id": finding.keyframe_id,
         "point": list(finding.point), "pixel": list(finding.pixel), "stamp_ns": finding.stamp_ns,
-        "has_photo": bool(finding.photo),
+        "has_photo": bool(finding.photo), "position": list(finding.position) if finding.position else None,
     }  # fmt: skip
 
 

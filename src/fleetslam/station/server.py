@@ -22,6 +22,7 @@ from fleetslam.middleware import Context
 from fleetslam.station.access import ConsoleAccess
 from fleetslam.station.bridge import StationBridge
 from fleetslam.station.protocol import TeleopLimits, VoxelUpdate
+from fleetslam.station.session import SessionBridge
 
 log = logging.getLogger(__name__)
 
@@ -85,11 +86,13 @@ class StationServer:
         access: the token and origins the WebSocket accepts (see :mod:`fleetslam.station.access`); default: a new
             random token, the console's own origin only. ``url`` carries the token.
         bulk_window: bulk data a browser may have unacknowledged (see ``BULK_WINDOW``).
+        session: review this finished run's directory instead of a live fleet (no ``context`` needed; see
+            :mod:`fleetslam.station.session`).
     """
 
     def __init__(
         self,
-        context: Context,
+        context: Context | None,
         *,
         host: str = "127.0.0.1",
         port: int = 8080,
@@ -97,6 +100,7 @@ class StationServer:
         teleop_rate_hz: float = 20.0,
         access: ConsoleAccess | None = None,
         bulk_window: int = BULK_WINDOW,
+        session: Path | None = None,
     ) -> None:
         require("aiohttp", "station")
         self.host, self.port = host, port
@@ -112,7 +116,8 @@ class StationServer:
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
-        self.bridge: StationBridge | None = None
+        self.session = session
+        self.bridge: StationBridge | SessionBridge | None = None
         self._error: BaseException | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------------------
@@ -126,9 +131,14 @@ class StationServer:
         self._ready.wait(20)
         if self._error is not None:
             raise self._error
-        self.bridge = StationBridge(
-            self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
-        )
+        if self.session is not None:
+            self.bridge = SessionBridge(self.session, self._emit_threadsafe)
+        elif self._context is not None:
+            self.bridge = StationBridge(
+                self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
+            )
+        else:
+            raise ValueError("StationServer needs a context, or a session to review")
 
     @property
     def url(self) -> str:
@@ -263,6 +273,12 @@ class StationServer:
                 bridge.gate.release(agent)
             ok, detail = await asyncio.to_thread(bridge.estop, agent, engage)
             client.queue({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
+        elif kind == "session_frame" and isinstance(bridge, SessionBridge):
+            try:
+                agent, t = str(message["agent"]), float(message["t"])
+            except (KeyError, TypeError, ValueError):
+                return
+            client.queue(await asyncio.to_thread(bridge.frame, agent, t))
         elif (kind.startswith("finding_") or kind == "measure_pick") and bridge is not None:
             await self._on_finding_message(client, kind, message)
 

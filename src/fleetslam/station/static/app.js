@@ -503,7 +503,8 @@ const SEVERITY_COLORS = { info: "#8fb8de", low: "#3ddc84", medium: "#ffd166", hi
 function findingParent(agent) { return frameOf(agent); }
 function findingPosition(f) {
   const poses = findings.keyframes.get(f.agent);
-  if (!poses || f.keyframe_id >= poses.length) return null;
+  if (!poses) return f.position || null; // no keyframes (a finished run's review): where it was last known
+  if (f.keyframe_id >= poses.length) return null;
   const [x, y, z, qx, qy, qz, qw] = poses[f.keyframe_id];
   const p = new THREE.Vector3(f.point[0], f.point[1], f.point[2]).applyQuaternion(new THREE.Quaternion(qx, qy, qz, qw));
   return [p.x + x, p.y + y, p.z + z];
@@ -746,6 +747,60 @@ renderer.domElement.addEventListener("pointerup", (e) => {
   addMeasurePoint({ source: "map", world: [voxel.x, voxel.y, voxel.z] });
 });
 
+// ---------------------------------------------------------------- reviewing a finished run
+// `fleetslam station --session DIR`: the run's maps and findings as they ended, and a time slider that replays each
+// robot's SLAM trajectory (marker and path up to the slider's time) and, when the run recorded its cameras, the
+// camera frame nearest that time (asked from the server).
+const session = { data: null, t: 0, timer: null, asked: 0 };
+state.session = session;
+function onSession(msg) {
+  session.data = msg;
+  const slider = document.getElementById("session-time");
+  slider.min = msg.start; slider.max = msg.end;
+  document.getElementById("session").hidden = false;
+  document.getElementById("session-title").textContent = `review of ${msg.run}`;
+  for (const agent of Object.keys(msg.agents)) view(agent).pathsFromTopic = { slam: true }; // the replay draws the path
+  setSessionTime(msg.end);
+}
+function sessionIndex(stamps, t) { // the last stamp at or before t, or -1
+  let lo = 0, hi = stamps.length;
+  while (lo < hi) { const mid = (lo + hi) >> 1; if (stamps[mid] <= t) lo = mid + 1; else hi = mid; }
+  return lo - 1;
+}
+function setSessionTime(t) {
+  const data = session.data;
+  session.t = t;
+  document.getElementById("session-time").value = t;
+  document.getElementById("session-time-out").textContent = `t = ${t.toFixed(1)} s`;
+  for (const [agent, track] of Object.entries(data.agents)) {
+    const i = Math.max(0, sessionIndex(track.stamps, t));
+    if (!track.poses.length) continue;
+    const [x, y, z, qx, qy, qz, qw] = track.poses[i];
+    onPose({ agent, source: "slam", x, y, z, q: [qx, qy, qz, qw] });
+    onPath({ agent, source: "slam", points: track.poses.slice(0, i + 1).map((p) => p.slice(0, 3)) });
+  }
+  state.sceneChanged = true;
+  const meta = document.getElementById("camera-meta");
+  if (!data.camera.includes(state.selected)) {
+    meta.textContent = "no camera in this run's recording: the trajectories are replayed";
+  } else if (performance.now() - session.asked > 200) { // at most five frames a second while scrubbing
+    session.asked = performance.now();
+    send({ type: "session_frame", agent: state.selected, t });
+  }
+}
+document.getElementById("session-time").oninput = (e) => setSessionTime(parseFloat(e.target.value));
+document.getElementById("session-play").onclick = () => {
+  const button = document.getElementById("session-play");
+  if (session.timer) { clearInterval(session.timer); session.timer = null; button.textContent = "play"; return; }
+  if (session.t >= session.data.end) setSessionTime(session.data.start);
+  button.textContent = "pause";
+  session.timer = setInterval(() => {
+    const t = Math.min(session.data.end, session.t + 0.2);
+    setSessionTime(t);
+    if (t >= session.data.end) document.getElementById("session-play").click();
+  }, 200);
+};
+
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
 // The server sends the bulk streams only while this page keeps up: it keeps at most a window of them unacknowledged
@@ -797,6 +852,8 @@ function connect() {
       case "frame": onFrame(msg); break;
       case "image": onImage(msg); break;
       case "stats": onStats(msg); break;
+      case "session": onSession(msg); break;
+      case "session_frame": if (!msg.ok) document.getElementById("camera-meta").textContent = msg.message; break;
       case "pong":
         state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
         if (document.getElementById("link-text").textContent === "connecting…") showLink();
