@@ -69,7 +69,7 @@ function heightColor(z, out) {
 function view(agent) {
   let v = agentViews.get(agent);
   if (v) return v;
-  v = { voxels: new Set(), cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
+  v = { voxels: new Map(), count: 0, keys: null, positions: null, colors: null, up: null, recolour: false, cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
   agentViews.set(agent, v);
   return v;
 }
@@ -153,7 +153,7 @@ function onFrame(msg) {
   placeFrames();
   const now = state.frames[msg.agent];
   if (!before.placement !== !now.placement || !before.mounting !== !now.mounting) { // "up" changed: recolour
-    for (const v of agentViews.values()) v.dirty = v.voxels.size > 0;
+    for (const v of agentViews.values()) { v.recolour = v.count > 0; v.dirty = v.count > 0; }
   }
 }
 // SLAM's pose and path where there is SLAM, else the wheel odometry's; never the ground truth (another frame).
@@ -185,41 +185,74 @@ state.frameOf = (agent, point = [0, 0, 0]) => {
 // Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
 // a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
 // lit triangles each took most of a core at ten frames a second; a sprite is one quad.
-// Voxels arrive as indices (i, j, k) in binary messages (centre: (index + 1/2) · size); kept as one number each.
+// Voxels arrive as indices (i, j, k) in binary messages (centre: (index + 1/2) · size); kept as one number each, in
+// a slot of the agent's point buffers. An update writes only the voxels it adds and removes (a removed voxel's slot
+// takes the last one), and only those slots are uploaded: rebuilding a map of 200 000 voxels on every update blocked
+// the page for seconds on a loaded two-core machine (its pongs then arrived late: "link lost").
 const KEY_OFFSET = 65536, KEY_BASE = 131072; // 17 bits per axis: ±3.2 km at 5 cm, well within a double's 53 bits
 const voxelKey = (i, j, k) => ((i + KEY_OFFSET) * KEY_BASE + (j + KEY_OFFSET)) * KEY_BASE + (k + KEY_OFFSET);
-function rebuildVoxels(agent, v) {
+const voxelColor = new THREE.Color();
+function voxelBuffers(agent, v, capacity) {
+  const positions = new Float32Array(3 * capacity), colors = new Float32Array(3 * capacity), keys = new Float64Array(capacity);
+  if (v.positions) { positions.set(v.positions.subarray(0, 3 * v.count)); colors.set(v.colors.subarray(0, 3 * v.count)); keys.set(v.keys.subarray(0, v.count)); }
+  v.positions = positions; v.colors = colors; v.keys = keys;
   if (v.cloud) { v.cloud.removeFromParent(); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
-  const n = v.voxels.size;
-  const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
-  const c = new THREE.Color();
-  const frame = frameOf(agent);
-  frame.updateWorldMatrix(true, false);
-  const e = frame.matrixWorld.elements; // coloured by height as drawn (a map frame's z may be ahead, not up)
-  const size = v.size;
-  let i = 0;
-  for (const key of v.voxels) {
-    const k = (key % KEY_BASE) - KEY_OFFSET, rest = Math.floor(key / KEY_BASE);
-    const y = ((rest % KEY_BASE) - KEY_OFFSET + 0.5) * size, x = (Math.floor(rest / KEY_BASE) - KEY_OFFSET + 0.5) * size;
-    const z = (k + 0.5) * size;
-    positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
-    heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], c);
-    colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
-    i += 3;
-  }
   const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
-  geometry.setAttribute("color", new THREE.BufferAttribute(colors, 3));
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3).setUsage(THREE.DynamicDrawUsage));
+  geometry.setAttribute("color", new THREE.BufferAttribute(colors, 3).setUsage(THREE.DynamicDrawUsage));
+  geometry.setDrawRange(0, v.count);
   const fleet = agent === "fleet";
   const material = new THREE.PointsMaterial({
     size: v.size, sizeAttenuation: true, vertexColors: true,
     transparent: fleet, opacity: fleet ? 0.35 : 1, depthWrite: !fleet,
   });
-  const points = new THREE.Points(geometry, material);
-  frameOf(agent).add(points);
-  v.cloud = points;
-  v.dirty = false;
+  v.cloud = new THREE.Points(geometry, material);
+  v.cloud.frustumCulled = false; // its bounding sphere is not recomputed as it grows
+  frameOf(agent).add(v.cloud);
+  v.dirtyFrom = Infinity; v.dirtyTo = -1; v.dirty = false;
 }
+function setVoxel(v, slot, key) {
+  const k = (key % KEY_BASE) - KEY_OFFSET, rest = Math.floor(key / KEY_BASE);
+  const y = ((rest % KEY_BASE) - KEY_OFFSET + 0.5) * v.size, x = (Math.floor(rest / KEY_BASE) - KEY_OFFSET + 0.5) * v.size;
+  const z = (k + 0.5) * v.size, o = 3 * slot, e = v.up;
+  v.positions[o] = x; v.positions[o + 1] = y; v.positions[o + 2] = z;
+  heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], voxelColor); // by height as drawn (a map frame's z may be ahead)
+  v.colors[o] = voxelColor.r; v.colors[o + 1] = voxelColor.g; v.colors[o + 2] = voxelColor.b;
+  v.keys[slot] = key;
+  v.voxels.set(key, slot);
+  v.dirtyFrom = Math.min(v.dirtyFrom, slot); v.dirtyTo = Math.max(v.dirtyTo, slot);
+}
+function frameUp(agent) {
+  const frame = frameOf(agent);
+  frame.updateWorldMatrix(true, false);
+  return frame.matrixWorld.elements.slice();
+}
+// Draws what changed since the last frame: new buffers when they grew or the frame turned (recoloured), else the slots.
+function rebuildVoxels(agent, v) {
+  if (!v.cloud || v.recolour) {
+    v.up = frameUp(agent);
+    v.recolour = false;
+    const keys = v.keys ? Array.from(v.keys.subarray(0, v.count)) : [];
+    voxelBuffers(agent, v, Math.max(1024, 2 * v.count));
+    keys.forEach((key, slot) => setVoxel(v, slot, key));
+  }
+  const geometry = v.cloud.geometry;
+  geometry.setDrawRange(0, v.count);
+  if (v.dirtyTo >= v.dirtyFrom) {
+    for (const name of ["position", "color"]) {
+      const attribute = geometry.attributes[name];
+      attribute.clearUpdateRanges();
+      attribute.addUpdateRange(3 * v.dirtyFrom, 3 * (v.dirtyTo - v.dirtyFrom + 1));
+      attribute.needsUpdate = true;
+    }
+  }
+  v.dirtyFrom = Infinity; v.dirtyTo = -1; v.dirty = false;
+}
+// The centres drawn of an agent's voxels (tests and the curious).
+state.voxelCentres = (agent) => {
+  const v = agentViews.get(agent);
+  return v && v.positions ? Array.from(v.cloud.geometry.attributes.position.array.subarray(0, 3 * v.count)) : [];
+};
 // A binary voxel message (fleetslam.station.protocol.VoxelUpdate.encode): u32 header length, JSON header, int32
 // indices of the added voxels, then of the removed ones.
 function onVoxels(buffer) {
@@ -227,10 +260,36 @@ function onVoxels(buffer) {
   const msg = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
   const indices = new Int32Array(buffer, 4 + length);
   const v = view(msg.agent);
+  if (msg.reset || v.size !== msg.size) { v.voxels.clear(); v.count = 0; v.recolour = true; }
   v.size = msg.size;
-  if (msg.reset) v.voxels.clear();
-  for (let n = 3 * msg.add, end = 3 * (msg.add + msg.remove); n < end; n += 3) v.voxels.delete(voxelKey(indices[n], indices[n + 1], indices[n + 2]));
-  for (let n = 0, end = 3 * msg.add; n < end; n += 3) v.voxels.add(voxelKey(indices[n], indices[n + 1], indices[n + 2]));
+  if (!v.up) v.up = frameUp(msg.agent);
+  for (let n = 3 * msg.add, end = 3 * (msg.add + msg.remove); n < end; n += 3) {
+    const key = voxelKey(indices[n], indices[n + 1], indices[n + 2]), slot = v.voxels.get(key);
+    if (slot === undefined) continue;
+    v.voxels.delete(key);
+    const last = --v.count;
+    if (slot !== last) { // the last voxel moves into the freed slot
+      const moved = v.keys[last];
+      v.keys[slot] = moved; v.voxels.set(moved, slot);
+      if (!v.recolour) { // else every slot is written when the buffers are made
+        v.positions.copyWithin(3 * slot, 3 * last, 3 * last + 3); v.colors.copyWithin(3 * slot, 3 * last, 3 * last + 3);
+        v.dirtyFrom = Math.min(v.dirtyFrom, slot); v.dirtyTo = Math.max(v.dirtyTo, slot);
+      }
+    }
+  }
+  const needed = v.count + msg.add;
+  if (!v.keys || needed > v.keys.length) { // grow (doubling): new buffers, uploaded whole once
+    v.recolour = true;
+    if (v.keys) { const keys = v.keys; v.keys = new Float64Array(2 * needed); v.keys.set(keys.subarray(0, v.count)); }
+    else v.keys = new Float64Array(Math.max(1024, 2 * needed));
+    v.positions = v.colors = null;
+  }
+  for (let n = 0, end = 3 * msg.add; n < end; n += 3) {
+    const key = voxelKey(indices[n], indices[n + 1], indices[n + 2]);
+    if (v.voxels.has(key)) continue;
+    if (v.recolour) { v.keys[v.count] = key; v.voxels.set(key, v.count); v.count += 1; } // written when rebuilt
+    else { setVoxel(v, v.count, key); v.count += 1; }
+  }
   v.dirty = true;
   state.voxelMessages += 1;
 }
