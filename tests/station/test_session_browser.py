@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
+from fleetslam.errors import FleetslamError
 from fleetslam.geometry import make_pose
 from fleetslam.inspection.findings import Finding, FindingStore
 from fleetslam.inspection.report import _occupied
@@ -104,3 +106,11 @@ def test_a_finished_run_is_reviewed_with_a_time_slider(browser_page: Any, tmp_pa
         page.wait_for_function("window.fleetslam.session.t > 5.0", timeout=10000)
         page.click("#session-play")
     assert not errors, errors
+
+
+def test_a_folder_that_is_not_a_run_is_refused_by_name(tmp_path: Path) -> None:
+    (tmp_path / "notes").mkdir()
+    for folder, reason in ((tmp_path / "missing", "not a directory"), (tmp_path / "notes", "not a fleetslam run")):
+        with pytest.raises(FleetslamError, match=reason) as raised:
+            StationServer(None, port=0, session=folder).start()
+        assert str(folder) in str(raised.value)

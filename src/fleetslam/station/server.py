@@ -103,6 +103,8 @@ class StationServer:
         session: Path | None = None,
     ) -> None:
         require("aiohttp", "station")
+        if context is None and session is None:
+            raise ValueError("StationServer needs a context, or a session to review")
         self.host, self.port = host, port
         self.limits = limits or TeleopLimits()
         self.teleop_period = 1.0 / teleop_rate_hz
@@ -131,14 +133,17 @@ class StationServer:
         self._ready.wait(20)
         if self._error is not None:
             raise self._error
-        if self.session is not None:
-            self.bridge = SessionBridge(self.session, self._emit_threadsafe)
-        elif self._context is not None:
-            self.bridge = StationBridge(
-                self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
-            )
-        else:
-            raise ValueError("StationServer needs a context, or a session to review")
+        try:
+            if self.session is not None:
+                self.bridge = SessionBridge(self.session, self._emit_threadsafe)
+            else:
+                assert self._context is not None
+                self.bridge = StationBridge(
+                    self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
+                )
+        except BaseException:
+            self.stop()
+            raise
 
     @property
     def url(self) -> str:
