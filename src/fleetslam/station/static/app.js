@@ -238,6 +238,7 @@ function rebuildVoxels(agent, v) {
   }
   const geometry = v.cloud.geometry;
   geometry.setDrawRange(0, v.count);
+  geometry.boundingSphere = null; // recomputed when a pick's ray needs it
   if (v.dirtyTo >= v.dirtyFrom) {
     for (const name of ["position", "color"]) {
       const attribute = geometry.attributes[name];
