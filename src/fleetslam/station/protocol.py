@@ -15,6 +15,9 @@ server → browser
   ``estop`` {agent, engaged, ok, message}; ``findings`` {findings}; ``finding_pick``,
   ``finding_created``, ``finding_updated``, ``finding_photo``, ``measure_point`` {ok, message, agent, stamp, point
   (map frame), range} (answers, see :mod:`fleetslam.station.findings`)
+``/ws?role=link`` is a connection that only answers ``ping`` {t} with ``pong`` {t}: the page's link indicator, judged in
+a worker of its own (``static/link.js``) so that a busy page never reads as a lost link.
+
 browser → server
   ``ping`` {t}; ``ack`` {bytes}: how much of the bulk streams (images, voxels, poses, paths, keyframes, statistics:
   text messages count their characters, binary ones their bytes) the page has handled; the server keeps at most

@@ -221,6 +221,8 @@ class StationServer:
             raise web.HTTPForbidden(text=refusal + "\n")
         socket = web.WebSocketResponse(heartbeat=5.0, max_msg_size=16 * 1024 * 1024)
         await socket.prepare(request)
+        if request.query.get("role") == "link":
+            return await self._link(socket)
         client = _Client(socket)
         limits = {"max_linear": self.limits.max_linear, "max_angular": self.limits.max_angular}
         agents = self.bridge.agent_names() if self.bridge else []
@@ -242,6 +244,23 @@ class StationServer:
             if self.bridge is not None:
                 for agent in client.driving:
                     self.bridge.gate.release(agent)
+        return socket
+
+    async def _link(self, socket: Any) -> Any:
+        """The page's link indicator (a worker of its own, ``static/link.js``): pongs to its pings, nothing else."""
+        from aiohttp import WSMsgType
+
+        async for frame in socket:
+            if frame.type != WSMsgType.TEXT:
+                continue
+            try:
+                message = json.loads(frame.data)
+                if message["type"] == "ping":
+                    await socket.send_str(json.dumps({"type": "pong", "t": message.get("t")}))
+            except (ValueError, KeyError, TypeError):
+                log.warning("ignoring a malformed link message: %.80s", frame.data)
+            except (ConnectionError, RuntimeError):
+                break
         return socket
 
     async def _on_browser_message(self, client: _Client, text: str) -> None:

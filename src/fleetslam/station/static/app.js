@@ -5,7 +5,7 @@ import { OrbitControls } from "/static/vendor/OrbitControls.js";
 const COLORS = ["#39b5ff", "#ff7a45", "#3ddc84", "#c77dff", "#ffd166", "#ef476f"];
 const state = {
   socket: null, agents: [], selected: null, camera: "rgb", limits: { max_linear: 0.5, max_angular: 1.2 },
-  rtt: null, lastPong: 0, voxelCount: 0, renders: 0, voxelMessages: 0, received: 0, acked: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
+  rtt: null, voxelCount: 0, renders: 0, voxelMessages: 0, received: 0, acked: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
   deadman: { key: false, button: false, pad: false }, keys: new Set(), stick: { v: 0, w: 0 }, estop: false,
 };
 window.fleetslam = state; // for tests and the curious
@@ -914,32 +914,34 @@ function connect() {
       case "stats": onStats(msg); break;
       case "session": onSession(msg); break;
       case "session_frame": if (!msg.ok) document.getElementById("camera-meta").textContent = msg.message; break;
-      case "pong":
-        state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
-        if (document.getElementById("link-text").textContent === "connecting…") showLink();
-        break;
       case "estop": if (!msg.ok) console.warn("e-stop:", msg.message); break;
     }
   };
   socket.onopen = () => {
     state.received = state.acked = 0; // counted per connection
-    ping();
+    showLink();
     if (state.selected) send({ type: "select", agent: state.selected });
     send({ type: "camera", kind: state.camera });
   };
   socket.onclose = () => { state.rtt = null; showLink(); setTimeout(connect, 1000); };
 }
-// The link is "ok" while pongs come back within 3 s, "connecting" until the first one of a connection.
-function ping() {
-  send({ type: "ping", t: performance.now() });
-  showLink();
-}
+// The link indicator shows what its worker (link.js) judges from pongs on a connection of its own; "lost" too while
+// this page's connection is not open.
+state.link = { state: "connecting", rtt: null };
 function showLink() {
   const link = document.getElementById("link"), text = document.getElementById("link-text");
   const open = state.socket && state.socket.readyState === 1;
-  const fresh = open && state.rtt !== null && performance.now() - state.lastPong < 3000;
-  link.className = "link" + (fresh ? (state.rtt > 150 ? " slow" : " ok") : "");
-  text.textContent = fresh ? `link ok · RTT ${state.rtt.toFixed(1)} ms` : open && state.rtt === null ? "connecting…" : "link lost";
+  const { state: judged, rtt } = state.link;
+  const fresh = open && judged === "ok";
+  state.rtt = fresh ? rtt : null;
+  link.className = "link" + (fresh ? (rtt > 150 ? " slow" : " ok") : "");
+  text.textContent = fresh ? `link ok · RTT ${rtt.toFixed(1)} ms` : open && judged === "connecting" ? "connecting…" : "link lost";
 }
-setInterval(ping, 1000);
+const linkWorker = new Worker("/static/link.js");
+linkWorker.onmessage = (event) => { state.link = event.data; showLink(); };
+{
+  const token = new URLSearchParams(location.search).get("token") || sessionStorage.getItem("fleetslam-token") || "";
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  linkWorker.postMessage({ url: `${scheme}://${location.host}/ws?role=link&token=${encodeURIComponent(token)}` });
+}
 connect();
