@@ -5,12 +5,16 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from fleetslam.middleware import Context
+import numpy as np
+
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.station.protocol import VoxelDiff
 from fleetslam.station.server import StationServer
 
 from ..support import wait_until
-from .conftest import RobotUnderTest, save_screenshot
+from .conftest import RobotUnderTest, pointcloud2, save_screenshot
 
 
 def test_console_in_chromium(
@@ -26,6 +30,9 @@ def test_console_in_chromium(
         first_frame = page.evaluate("window.fleetslam.lastFrameSeq")
         page.wait_for_function(f"window.fleetslam.lastFrameSeq > {first_frame}", timeout=10000)
         assert page.evaluate("window.fleetslam.selected") == "c3po"
+        # The robot's whole block (20 × 10 × 3 voxels, sent growing as binary deltas) is drawn, voxel for voxel.
+        page.wait_for_function("window.fleetslam.voxelCount === 600", timeout=20000)
+        page.wait_for_function("document.getElementById('link-text').textContent.startsWith('link ok')", timeout=5000)
         # The test browser draws with SwiftShader (no GPU): the view must know it and spare the CPU.
         assert page.evaluate("window.fleetslam.softwareGL") is True
         # Hold the deadman (Space) and W: forward commands reach the robot.
@@ -51,3 +58,69 @@ def test_console_in_chromium(
         time.sleep(1.0)
         assert not [c for c in test_robot.commands if c[0] > closed + 0.5 and c[1] != 0.0]  # as after the release
     assert not errors, errors
+
+
+def test_link_reads_lost_within_two_seconds_of_the_server_stopping(
+    browser_page: Any, make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    page, errors = browser_page
+    server = StationServer(make_context(), port=0)
+    with server:
+        page.goto(server.url)
+        page.wait_for_function("document.getElementById('link-text').textContent.startsWith('link ok')", timeout=20000)
+    stopped = time.monotonic()
+    page.wait_for_function("document.getElementById('link-text').textContent === 'link lost'", timeout=5000)
+    assert time.monotonic() - stopped < 2.0
+    assert not errors, errors
+
+
+def test_the_page_draws_exactly_the_voxels_of_a_changing_map(
+    browser_page: Any, make_context: Callable[..., Context]
+) -> None:
+    """Voxels arrive as deltas and are written into the point buffers slot by slot (a removed one's slot takes the
+    last one, the buffers grow by doubling): after a map that grows, moves and shrinks, the page draws its voxels,
+    no more and no fewer, at their centres."""
+    page, errors = browser_page
+    node = Node("mapper", context=make_context("c3po"))
+    publisher = node.create_publisher("sensor_msgs/msg/PointCloud2", "map/occupied", QoSProfile(depth=1))
+    rng = np.random.default_rng(5)
+
+    def block(origin: tuple[int, int, int], n: tuple[int, int, int]) -> np.ndarray:
+        grid = np.stack(np.meshgrid(*(np.arange(k) for k in n), indexing="ij"), -1).reshape(-1, 3) + origin
+        return (grid * 0.05 + 0.025).astype(np.float64)
+
+    clouds = [
+        block((0, 0, 0), (10, 10, 3)),  # 300
+        block((0, 0, 0), (40, 30, 3)),  # 3600: the buffers grow
+        block((20, 5, 0), (40, 30, 2)),  # moved: most removed, most added
+        block((25, 10, 1), (7, 9, 2))[rng.permutation(126)[:100]],  # shrunk to 100 scattered voxels
+    ]
+    try:
+        with StationServer(make_context(), port=0) as server:
+            page.goto(server.url)
+            for cloud in clouds:
+                expected = VoxelDiff(0.05)
+                expected.update(cloud)
+                want = _rows(expected.centres(expected.keys()))
+                deadline = time.monotonic() + 20.0
+                while True:
+                    publisher.publish(pointcloud2(cloud))
+                    time.sleep(0.5)
+                    drawn = np.array(page.evaluate("window.fleetslam.voxelCentres('c3po')")).reshape(-1, 3)
+                    drawn = _rows(drawn)
+                    if (
+                        drawn.shape == want.shape and np.allclose(drawn, want, atol=1e-4)
+                    ) or time.monotonic() > deadline:
+                        break
+                assert drawn.shape == want.shape, (drawn.shape, want.shape)
+                assert np.allclose(drawn, want, atol=1e-4)
+                assert page.evaluate("window.fleetslam.voxelCount") == len(want)
+    finally:
+        node.destroy()
+    assert not errors, errors
+
+
+def _rows(points: np.ndarray) -> np.ndarray:
+    """Points rounded to 0.1 mm, in row order (a set to compare)."""
+    rounded = np.round(np.asarray(points, dtype=np.float64).reshape(-1, 3), 4)
+    return rounded[np.lexsort(rounded.T[::-1])]

@@ -31,6 +31,10 @@ MAX_W = 0.8  # the console's default max ω slider (rad/s); D asks for -MAX_W
 STILL = 0.05  # m/s and rad/s: standing (a braked robot shows < 5 mm/s, test_sim_tracking)
 WATCHDOG_STOP = 1.0  # s: the robot's command timeout (0.5 s) plus braking
 AUTOPILOT_RESUMES = 3.0  # s after the last command the robot received
+LINK_OK = "document.getElementById('link-text').textContent.startsWith('link ok')"
+SAMPLE_LINK = """() => { window.linkSamples = []; setInterval(() => window.linkSamples.push({
+    link: document.getElementById('link-text').textContent, frames: window.fleetslam.frameCount,
+    renders: window.fleetslam.renders}), 1000); }"""
 
 
 class Truth(NamedTuple):
@@ -124,6 +128,11 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
             page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=60000)
             page.wait_for_function("window.fleetslam.lastFrameSeq > 2", timeout=30000)
             assert page.evaluate("window.fleetslam.selected") == "c3po"
+            # Issue 15: the link read "lost" while the demo ran fine. From the first pong on, it is sampled every
+            # second until the page closes, with the camera's frames and the 3D view's renders.
+            page.wait_for_function(LINK_OK, timeout=10000)
+            page.evaluate(SAMPLE_LINK)
+            time.sleep(10.0)  # watched for ten seconds before driving, then while driving
 
             turn_right_in_place("first")
             assert (0.0, -MAX_W) in [(round(v, 6), round(w, 6)) for _, v, w in commands], commands[-5:]
@@ -135,6 +144,7 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
             assert_stands_after(released, 0.6, "after the deadman was released")
 
             turn_right_in_place("again")
+            samples = page.evaluate("window.linkSamples")
             page.close()
             closed = sim_time_at(time.time())
             # The console stops its stream (disconnect, or 0.3 s without browser messages); the robot's own
@@ -145,3 +155,6 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
         demo.join(120)
     assert not demo.is_alive(), "the demo did not stop"
     assert not errors, errors
+    assert len(samples) >= 8, samples
+    assert all(s["link"].startswith("link ok") for s in samples), [s for s in samples if "ok" not in s["link"]]
+    assert samples[-1]["frames"] > samples[0]["frames"] and samples[-1]["renders"] > samples[0]["renders"], samples

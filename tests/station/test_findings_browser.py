@@ -229,12 +229,11 @@ def test_measuring_between_two_voxels_of_the_3d_view(
     grid = np.stack(np.meshgrid(np.arange(20), np.arange(10), [0, 1, 2], indexing="ij"), -1).reshape(-1, 3)
     voxels = VoxelDiff(0.05)
     voxels.update(((grid * 0.05 + 0.025) + [1.0, 0.0, 0.0]).astype(np.float32).astype(np.float64))
-    centres = voxels.snapshot()
+    centres = voxels.centres(voxels.keys())
     top = centres[np.isclose(centres[:, 2], centres[:, 2].max())]
     a, b = top[np.argmin(top[:, 0] + top[:, 1])], top[np.argmax(top[:, 0] + top[:, 1])]
     with StationServer(make_context(), port=0) as server:
         page.goto(server.url)
-        # The whole block has arrived (the robot sends it growing, 20 points a frame): its voxels stop changing.
         # The whole block has arrived (the robot sends it growing, 20 points a frame): the count stops changing.
         page.wait_for_function("window.fleetslam && window.fleetslam.voxelCount > 0", timeout=30000)
         assert wait_until(lambda: _voxels_stable(page), 30.0, 0.1)

@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 
 from fleetslam.middleware import Context
-from fleetslam.station.protocol import TeleopLimits
-from fleetslam.station.server import StationServer
+from fleetslam.station.protocol import TeleopLimits, decode_voxels
+from fleetslam.station.server import BULK_TYPES, StationServer
 
 from ..support import wait_until
 from .conftest import RobotUnderTest
@@ -21,12 +21,21 @@ aiohttp = pytest.importorskip("aiohttp")
 
 
 async def _session(url: str, actions: Callable[[Any, list[dict[str, Any]]], Any]) -> list[dict[str, Any]]:
+    """A WebSocket client as the page is: it acknowledges the bulk streams it has handled."""
     received: list[dict[str, Any]] = []
     async with aiohttp.ClientSession() as http, http.ws_connect(url) as ws:
 
         async def reader() -> None:
+            handled = 0
             async for frame in ws:
-                received.append(json.loads(frame.data))
+                if frame.type == aiohttp.WSMsgType.BINARY:
+                    header, add, remove = decode_voxels(frame.data)
+                    received.append({**header, "added": add, "removed": remove})
+                    handled += len(frame.data)
+                else:
+                    received.append(json.loads(frame.data))
+                    handled += len(frame.data) if received[-1]["type"] in BULK_TYPES else 0
+                await ws.send_str(json.dumps({"type": "ack", "bytes": handled}))
 
         task = asyncio.create_task(reader())
         await actions(ws, received)
@@ -69,7 +78,7 @@ def test_console_streams_map_camera_and_drives(
     assert voxels and voxels[-1]["total"] > 0
     # Incremental: later updates carry only the new voxels, not the whole map again.
     if len(voxels) > 1:
-        assert len(voxels[-1]["add"]) < voxels[-1]["total"]
+        assert voxels[-1]["add"] == len(voxels[-1]["added"]) < voxels[-1]["total"]
     images = [m for m in received if m["type"] == "image"]
     assert images and images[0]["mime"] == "image/jpeg" and images[-1]["seq"] > images[0]["seq"] - 1
     assert any(m["type"] == "pong" and m["t"] == 1.5 for m in received)
@@ -143,3 +152,53 @@ def test_websocket_refuses_foreign_origins_and_missing_or_wrong_tokens(
             assert asyncio.run(_handshake(server.ws_url, headers))[0] == 101
         asyncio.run(_session(server.ws_url, drive))
         assert wait_until(lambda: any(v > 0.05 for _, v, _ in test_robot.commands), 5.0)
+
+
+def test_a_page_that_falls_behind_gets_pongs_at_once_and_the_newest_data_after(
+    make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    """Issue 15: a busy page's pongs queued behind images and maps (the link read "lost" while all was well). A page
+    that acknowledges nothing gets at most the bulk window, its pongs at once, and then only the newest frames."""
+    window = 16 * 1024  # a dozen of the test robot's frames
+    with StationServer(make_context(), port=0, bulk_window=window) as server:
+
+        async def run() -> tuple[int, float, list[int], list[int]]:
+            bulk, pong_after = 0, -1.0
+            async with aiohttp.ClientSession() as http, http.ws_connect(server.ws_url) as ws:
+                await ws.send_str(json.dumps({"type": "select", "agent": "c3po"}))
+                seqs: list[int] = []
+
+                async def read_for(seconds: float) -> None:
+                    nonlocal bulk, pong_after
+                    end = time.monotonic() + seconds
+                    while (left := end - time.monotonic()) > 0:
+                        try:
+                            frame = await ws.receive(timeout=left)
+                        except TimeoutError:
+                            return
+                        if frame.type == aiohttp.WSMsgType.BINARY:
+                            bulk += len(frame.data)
+                            continue
+                        message = json.loads(frame.data)
+                        if message["type"] == "pong":
+                            pong_after = time.monotonic() - message["t"]
+                        elif message["type"] in BULK_TYPES:
+                            bulk += len(frame.data)
+                            if message["type"] == "image":
+                                seqs.append(message["seq"])
+
+                await read_for(4.0)  # 40 frames published, a dozen sent: nothing acknowledged
+                before_ack = list(seqs)
+                await ws.send_str(json.dumps({"type": "ping", "t": time.monotonic()}))
+                await read_for(1.0)
+                withheld = bulk
+                await ws.send_str(json.dumps({"type": "ack", "bytes": bulk}))
+                await read_for(1.0)
+                return withheld, pong_after, before_ack, seqs[len(before_ack) :]
+
+        withheld, pong_after, before_ack, after_ack = asyncio.run(run())
+    assert test_robot.frames > 30
+    image_size = 4 * 1024  # a 160×120 JPEG of the test robot's frames, base64, is well under this
+    assert window <= withheld <= window + image_size, withheld
+    assert 0 <= pong_after < 0.5, pong_after
+    assert after_ack and after_ack[0] > before_ack[-1] + 1, (before_ack, after_ack)  # stale frames were dropped

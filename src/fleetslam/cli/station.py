@@ -35,6 +35,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="serve the fleet's findings from this console, kept in DIR (findings.json and photos); without it, "
         "another process (the demo) serves them",
     )  # fmt: skip
+    parser.add_argument(
+        "--session", type=Path, metavar="DIR",
+        help="review a finished run (a demo's results folder): its maps, trajectories (a time slider replays them), "
+        "findings, and its recorded camera if the recording holds images; no robot, no network",
+    )  # fmt: skip
     parser.set_defaults(func=run)
 
 
@@ -47,6 +52,14 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise ConfigError(f"--token / FLEETSLAM_STATION_TOKEN: {err}") from err
     with contextlib.ExitStack() as stack:
+        if args.session is not None:
+            server = stack.enter_context(
+                StationServer(None, host=args.host, port=args.port, limits=limits, access=access, session=args.session)
+            )
+            print(f"operator console (reviewing {args.session}): {server.url}", flush=True)
+            with contextlib.suppress(KeyboardInterrupt):
+                stop.wait()
+            return 0
         ctx = stack.enter_context(Context())
         if args.findings is not None:
             from fleetslam.inspection.node import FindingsNode

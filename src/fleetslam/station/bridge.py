@@ -144,8 +144,9 @@ class StationBridge:
         view.fleet_placement = self._fleet_placements.get(name)
         self.findings.watch(name)
         # SLAM's poses are all kept (depth 20): a finding picked on a frame needs the poses around it, and a busy
-        # station dropped them with depth 1 (the pick then failed as "not tracked"); 50 Hz odometry stays at 1.
-        for source, odom, depth in (("odom", topics.ODOM, 1), ("slam", topics.SLAM_ODOM, 20),
+        # station dropped them with depth 1 (the pick then failed as "not tracked"); so is the wheel odometry (depth
+        # 25, half a second at 50 Hz), which bridges a frame SLAM skipped to its nearest SLAM pose.
+        for source, odom, depth in (("odom", topics.ODOM, 25), ("slam", topics.SLAM_ODOM, 20),
                                     ("truth", topics.GROUND_TRUTH_ODOM, 1)):  # fmt: skip
             sub(odom.type, odom.of(name), self._odom_callback(view, source), odom.qos(depth=depth))
         # The keyframe poses come with the path (the same poses): the whole graph, constraints and all, grows to
@@ -180,20 +181,16 @@ class StationBridge:
         added, removed = view.voxels.update(points)
         if len(added) or len(removed):
             self.emit(
-                {
-                    "type": "voxels",
-                    "agent": view.name,
-                    "size": self.voxel_resolution,
-                    "add": np.round(added, 3).tolist(),
-                    "remove": np.round(removed, 3).tolist(),
-                    "total": len(view.voxels),
-                },
+                {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": added,
+                 "remove": removed, "total": len(view.voxels)},
                 None,
-            )
+            )  # fmt: skip
 
     def _on_odom(self, view: AgentView, source: str, msg: Any) -> None:
         if source == "slam":
             self.findings.record_pose(view.name, msg)
+        elif source == "odom":
+            self.findings.record_odom(view.name, msg)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         if source == "slam":  # the camera's pose: the robot's marker goes where its base is
             pose = robot_pose(pose_matrix(msg.pose.pose), view.mounting)
@@ -285,6 +282,7 @@ class StationBridge:
                 matrix = _finite_matrix(view.name, "camera mounting", transform.transform)
                 if matrix is not None:
                     view.mounting = matrix
+                    self.findings.record_mounting(view.name, np.reshape(matrix, (4, 4)))
                     self.emit(frame_message(view), None)
 
     def _on_statistics(self, msg: Any) -> None:
@@ -324,11 +322,11 @@ class StationBridge:
         """Messages that bring a new browser up to date."""
         out: list[dict[str, Any]] = [{"type": "agents", "agents": self.agent_names()}]
         for view in list(self.agents.values()):
-            voxels = view.voxels.snapshot()
-            if len(voxels):
+            keys = view.voxels.keys()
+            if len(keys):
                 out.append(
-                    {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": voxels.tolist(),
-                     "remove": [], "total": len(voxels), "reset": True}
+                    {"type": "voxels", "agent": view.name, "size": self.voxel_resolution, "add": keys,
+                     "remove": keys[:0], "total": len(keys), "reset": True}
                 )  # fmt: skip
             for source, pose in view.poses.items():
                 out.append({"type": "pose", "agent": view.name, "source": source, **pose})

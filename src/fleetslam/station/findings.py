@@ -23,7 +23,7 @@ import struct
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from fleetslam import topics
 from fleetslam.errors import FindingError, MessageError, ServiceError
-from fleetslam.geometry import interpolate_pose
+from fleetslam.geometry import interpolate_pose, invert
 from fleetslam.inspection.findings import Finding, anchor_to_keyframe, crop_around, pick_point
 from fleetslam.inspection.node import (
     CREATE_SERVICE,
@@ -57,7 +57,13 @@ POSES_KEPT = 600
 POSE_WAIT_S = 5.0
 """How long a new finding waits for SLAM to have tracked the picked frame (it runs behind on a loaded machine)."""
 MAX_POSE_GAP_NS = 500_000_000
-"""The frame's pose is interpolated between SLAM poses at most this far apart."""
+"""Without odometry, the frame's pose is interpolated between SLAM poses at most this far apart."""
+ODOM_KEPT = 1500
+"""Wheel odometry poses kept per agent (30 s at 50 Hz)."""
+MAX_ODOM_GAP_NS = 200_000_000
+"""Odometry is interpolated between samples at most this far apart (it comes at 50 Hz; a busy station drops some)."""
+MAX_BRIDGE_NS = 2_000_000_000
+"""The odometry bridges at most this long from the nearest SLAM pose to the picked frame (its drift: millimetres)."""
 PICKS_KEPT = 20
 
 
@@ -87,6 +93,11 @@ class _AgentFeed:
     pose_stamps: list[int]
     poses: list[NDArray[np.float64]]
     keyframes: list[NDArray[np.float64]]
+    odom_stamps: list[int] = field(default_factory=list)
+    odom: list[NDArray[np.float64]] = field(default_factory=list)
+    """Wheel odometry: ``T_odom_base``."""
+    mounting: NDArray[np.float64] | None = None
+    """``T_base_camera`` (the camera's mounting, from ``tf_static``)."""
     intrinsics: Intrinsics | None = None
 
 
@@ -145,13 +156,19 @@ class FindingsDesk:
         stamp, pose = ns_from_stamp(msg.header.stamp), pose_matrix(msg.pose.pose)
         with self._lock:
             feed = self._feed(agent)
-            i = bisect.bisect_left(feed.pose_stamps, stamp)  # in stamp order (at the end, unless it came late)
-            if i < len(feed.pose_stamps) and feed.pose_stamps[i] == stamp:
-                feed.poses[i] = pose
-                return
-            feed.pose_stamps.insert(i, stamp)
-            feed.poses.insert(i, pose)
-            del feed.pose_stamps[:-POSES_KEPT], feed.poses[:-POSES_KEPT]
+            _insert(feed.pose_stamps, feed.poses, stamp, pose, POSES_KEPT)
+
+    def record_odom(self, agent: str, msg: Any) -> None:
+        """The wheel odometry (``odom``: base in the odom frame): it bridges a frame SLAM skipped to a SLAM pose."""
+        stamp, pose = ns_from_stamp(msg.header.stamp), pose_matrix(msg.pose.pose)
+        with self._lock:
+            feed = self._feed(agent)
+            _insert(feed.odom_stamps, feed.odom, stamp, pose, ODOM_KEPT)
+
+    def record_mounting(self, agent: str, T_base_camera: NDArray[np.float64]) -> None:
+        """The camera's mounting on the base (``tf_static``), through which the odometry moves the camera."""
+        with self._lock:
+            self._feed(agent).mounting = np.asarray(T_base_camera, dtype=np.float64).reshape(4, 4)
 
     def record_keyframes(self, agent: str, poses: list[Any]) -> None:
         """The agent's keyframe poses (its ``path``, in id order)."""
@@ -242,20 +259,43 @@ class FindingsDesk:
         return {**reply, "ok": bool(response.success), "message": str(response.message), "id": str(response.id)}
 
     def _pose_at(self, agent: str, stamp_ns: int) -> NDArray[np.float64]:
-        """SLAM's camera pose at ``stamp_ns`` (interpolated), waiting a while for SLAM to catch up."""
+        """SLAM's camera pose at ``stamp_ns``, waiting a while for SLAM to catch up.
+
+        SLAM processes the newest frame when it is free, so it skips frames (half of them on a loaded machine).
+        A skipped frame's pose is the nearest SLAM pose moved by the wheel odometry between the two stamps,
+        through the camera's mounting: ``T_map_cam(t) = T_map_cam(s) · T_base_cam⁻¹ · T_odom_base(s)⁻¹ ·
+        T_odom_base(t) · T_base_cam`` (over a fraction of a second odometry drifts by millimetres; it follows
+        a turn that interpolating between SLAM poses cuts). Without odometry around both stamps, it is
+        interpolated between SLAM poses at most ``MAX_POSE_GAP_NS`` apart.
+        """
         deadline = time.monotonic() + POSE_WAIT_S
         while True:
             with self._lock:
                 feed = self._feed(agent)
                 stamps, poses = list(feed.pose_stamps), list(feed.poses)
+                odom_stamps, odom, mounting = list(feed.odom_stamps), list(feed.odom), feed.mounting
             i = bisect.bisect_left(stamps, stamp_ns)
             if i < len(stamps) and stamps[i] == stamp_ns:
                 return poses[i]
-            if 0 < i < len(stamps) and stamps[i] - stamps[i - 1] <= MAX_POSE_GAP_NS:
-                fraction = (stamp_ns - stamps[i - 1]) / (stamps[i] - stamps[i - 1])
-                return interpolate_pose(poses[i - 1], poses[i], fraction)
-            if i < len(stamps) or time.monotonic() > deadline:  # later poses would not help
-                raise FindingError(f"SLAM of {agent!r} has no pose of the picked frame (it was not tracked)")
+            # Until SLAM has gone past the frame it may still track it; then the frame was skipped.
+            if i < len(stamps) or time.monotonic() > deadline:
+                nearest = sorted(
+                    (j for j in (i - 1, i) if 0 <= j < len(stamps)), key=lambda j: abs(stamps[j] - stamp_ns)
+                )
+                for j in nearest:
+                    if mounting is None or abs(stamps[j] - stamp_ns) > MAX_BRIDGE_NS:
+                        continue
+                    odom_then, odom_now = _at(odom_stamps, odom, stamps[j]), _at(odom_stamps, odom, stamp_ns)
+                    if odom_then is not None and odom_now is not None:
+                        moved = invert(odom_then) @ odom_now  # the base's motion, in the base's frame then
+                        return poses[j] @ invert(mounting) @ moved @ mounting
+                if 0 < i < len(stamps) and stamps[i] - stamps[i - 1] <= MAX_POSE_GAP_NS:
+                    fraction = (stamp_ns - stamps[i - 1]) / (stamps[i] - stamps[i - 1])
+                    return interpolate_pose(poses[i - 1], poses[i], fraction)
+                raise FindingError(
+                    f"SLAM of {agent!r} has no pose of the picked frame (it was not tracked, and no SLAM pose within "
+                    f"{MAX_BRIDGE_NS / 1e9:.0f} s has wheel odometry to bridge the gap)"
+                )
             time.sleep(0.05)
 
     def update(self, finding_id: str, changes: dict[str, str]) -> dict[str, Any]:
@@ -287,13 +327,35 @@ class FindingsDesk:
         return {"type": "findings", "findings": [finding_json(f) for f in self.findings.values()]}
 
 
+def _insert(stamps: list[int], poses: list[NDArray[np.float64]], stamp: int, pose: NDArray[np.float64],
+            kept: int) -> None:  # fmt: skip
+    """Keep ``pose`` at ``stamp`` in stamp order (at the end, unless it came late), the newest ``kept``."""
+    i = bisect.bisect_left(stamps, stamp)
+    if i < len(stamps) and stamps[i] == stamp:
+        poses[i] = pose
+        return
+    stamps.insert(i, stamp)
+    poses.insert(i, pose)
+    del stamps[:-kept], poses[:-kept]
+
+
+def _at(stamps: list[int], poses: list[NDArray[np.float64]], stamp: int) -> NDArray[np.float64] | None:
+    """The pose at ``stamp`` interpolated between samples at most ``MAX_ODOM_GAP_NS`` apart; None outside them."""
+    i = bisect.bisect_left(stamps, stamp)
+    if i < len(stamps) and stamps[i] == stamp:
+        return poses[i]
+    if 0 < i < len(stamps) and stamps[i] - stamps[i - 1] <= MAX_ODOM_GAP_NS:
+        return interpolate_pose(poses[i - 1], poses[i], (stamp - stamps[i - 1]) / (stamps[i] - stamps[i - 1]))
+    return None
+
+
 def finding_json(finding: Finding) -> dict[str, Any]:
     """A finding for the browser (names and texts are inserted there as text)."""
     return {
         "id": finding.id, "title": finding.title, "severity": finding.severity, "status": finding.status,
         "note": finding.note, "agent": finding.agent, "keyframe_id": finding.keyframe_id,
         "point": list(finding.point), "pixel": list(finding.pixel), "stamp_ns": finding.stamp_ns,
-        "has_photo": bool(finding.photo),
+        "has_photo": bool(finding.photo), "position": list(finding.position) if finding.position else None,
     }  # fmt: skip
 
 

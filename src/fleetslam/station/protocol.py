@@ -3,7 +3,8 @@
 Browser ⇄ server messages are JSON objects with a ``type``:
 
 server → browser
-  ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels`` {agent, size, add [[x,y,z]…], remove […], total};
+  ``hello`` {agents, limits}; ``agents`` {agents}; ``voxels``: a binary message (:meth:`VoxelUpdate.encode`: voxel
+  indices added and removed, the deltas merged while the browser was busy);
   ``pose`` {agent, source, x, y, z, yaw, q: [x, y, z, w]} (the robot's base; ``slam``: in its map frame, from the
   camera's pose); ``path`` {agent, source, points}; ``keyframes`` {agent, poses};
   ``image`` {agent, kind: rgb|depth, mime, data (base64), seq, stamp (ns, a decimal string)}; ``stats`` {rows};
@@ -14,8 +15,15 @@ server → browser
   ``estop`` {agent, engaged, ok, message}; ``findings`` {findings}; ``finding_pick``,
   ``finding_created``, ``finding_updated``, ``finding_photo``, ``measure_point`` {ok, message, agent, stamp, point
   (map frame), range} (answers, see :mod:`fleetslam.station.findings`)
+``/ws?role=link`` is a connection that only answers ``ping`` {t} with ``pong`` {t}: the page's link indicator, judged in
+a worker of its own (``static/link.js``) so that a busy page never reads as a lost link.
+
 browser → server
-  ``ping`` {t}; ``select`` {agent}; ``camera`` {kind}; ``drive`` {agent, v, w, deadman};
+  ``ping`` {t}; ``ack`` {bytes}: how much of the bulk streams (images, voxels, poses, paths, keyframes, statistics:
+  text messages count their characters, binary ones their bytes) the page has handled; the server keeps at most
+  :data:`fleetslam.station.server.BULK_WINDOW` unacknowledged, keeps only the newest of each stream meanwhile
+  (voxels: merged), and sends control messages (pong, replies) first; ``select`` {agent}; ``camera`` {kind};
+  ``drive`` {agent, v, w, deadman};
   ``estop`` {agent, engage}; ``finding_pick`` {agent, stamp, u, v}; ``finding_create`` {pick, title, severity,
   note}; ``finding_update`` {id, title?, severity?, status?, note?}; ``finding_photo`` {id}; ``measure_pick``
   {agent, stamp, u, v}
@@ -23,47 +31,117 @@ browser → server
 
 from __future__ import annotations
 
+import json
 import math
+import struct
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+KEY_BITS = 21
+"""Bits per axis of a packed voxel key: ±2²⁰ voxels (±52 km at 5 cm) each way."""
+_KEY_OFFSET = 1 << (KEY_BITS - 1)
+_KEY_MASK = (1 << KEY_BITS) - 1
+
+
+def pack_keys(indices: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Voxel indices ``(n, 3)`` as one sortable int64 each."""
+    shifted = np.asarray(indices, dtype=np.int64).reshape(-1, 3) + _KEY_OFFSET
+    return np.asarray((shifted[:, 0] << (2 * KEY_BITS)) | (shifted[:, 1] << KEY_BITS) | shifted[:, 2], dtype=np.int64)
+
+
+def unpack_keys(keys: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Packed keys back to voxel indices ``(n, 3)``."""
+    keys = np.asarray(keys, dtype=np.int64)
+    return np.stack(
+        [(keys >> (2 * KEY_BITS)) & _KEY_MASK, (keys >> KEY_BITS) & _KEY_MASK, keys & _KEY_MASK], axis=1
+    ) - (_KEY_OFFSET)
 
 
 class VoxelDiff:
     """Keeps the voxels already sent to browsers; turns each new cloud into added and removed voxels.
 
-    Voxels are identified by their centre quantised to ``resolution`` so float noise never re-sends them.
+    Voxels are identified by their index (centre quantised to ``resolution``, packed by :func:`pack_keys`) so float
+    noise never re-sends them; the browsers get the indices (a voxel's centre is ``(index + 1/2) · resolution``).
     """
 
     def __init__(self, resolution: float) -> None:
         self.resolution = resolution
-        self._keys: set[tuple[int, int, int]] = set()
+        self._keys: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
 
-    def _quantise(self, points: NDArray[np.float64]) -> set[tuple[int, int, int]]:
+    def _quantise(self, points: NDArray[np.float64]) -> NDArray[np.int64]:
         if points.size == 0:
-            return set()
-        keys = np.floor(np.asarray(points, dtype=np.float64) / self.resolution).astype(np.int64)
-        return set(map(tuple, keys.tolist()))  # type: ignore[arg-type]
+            return np.zeros(0, dtype=np.int64)
+        indices = np.floor(np.asarray(points, dtype=np.float64).reshape(-1, 3) / self.resolution).astype(np.int64)
+        return np.unique(pack_keys(indices))
 
-    def update(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``(added centres, removed centres)`` relative to the previous cloud."""
+    def update(self, points: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``(added keys, removed keys)`` (packed, sorted) relative to the previous cloud."""
         keys = self._quantise(points)
-        added, removed = keys - self._keys, self._keys - keys
+        added = np.setdiff1d(keys, self._keys, assume_unique=True)
+        removed = np.setdiff1d(self._keys, keys, assume_unique=True)
         self._keys = keys
-        return self._centres(added), self._centres(removed)
+        return added, removed
 
-    def snapshot(self) -> NDArray[np.float64]:
-        """Every voxel currently known (for a browser that connects later)."""
-        return self._centres(self._keys)
+    def keys(self) -> NDArray[np.int64]:
+        """Every voxel currently known (packed keys; for a browser that connects later)."""
+        return self._keys
 
-    def _centres(self, keys: set[tuple[int, int, int]]) -> NDArray[np.float64]:
-        if not keys:
-            return np.zeros((0, 3))
-        return (np.array(sorted(keys), dtype=np.float64) + 0.5) * self.resolution
+    def centres(self, keys: NDArray[np.int64]) -> NDArray[np.float64]:
+        """The centres of packed keys."""
+        return (unpack_keys(keys).astype(np.float64) + 0.5) * self.resolution
 
     def __len__(self) -> int:
         return len(self._keys)
+
+
+@dataclass
+class VoxelUpdate:
+    """Voxels of one agent's map still to send to one browser: the deltas that arrived while it was busy, merged
+    into one (stale deltas are never queued), sent as one binary WebSocket message (:meth:`encode`).
+
+    Invariant of a delta against what the browser has (``have``): ``add`` ∩ have = ∅ and ``remove`` ⊆ have.
+    """
+
+    agent: str
+    size: float
+    add: NDArray[np.int64]
+    remove: NDArray[np.int64]
+    total: int
+    reset: bool = False
+    """The browser drops every voxel of the agent first (a new browser's first update)."""
+
+    def merge(self, later: VoxelUpdate) -> None:
+        """Follow this update by ``later`` (made against what the browser has after this one)."""
+        # A voxel added here and removed later was never sent, and one removed here and added back is still there.
+        self.add, self.remove = (
+            np.union1d(np.setdiff1d(self.add, later.remove, True), np.setdiff1d(later.add, self.remove, True)),
+            np.union1d(np.setdiff1d(self.remove, later.add, True), np.setdiff1d(later.remove, self.add, True)),
+        )
+        self.size, self.total = later.size, later.total
+        self.reset = self.reset or later.reset
+
+    def encode(self) -> bytes:
+        """``u32 n`` · ``n`` bytes of JSON {type: "voxels", agent, size, add, remove, total, reset} (counts), padded
+        with spaces to 4 bytes · int32 voxel indices (i, j, k) of the added voxels, then of the removed ones; little
+        endian. A voxel's centre is ``(index + 1/2) · size``."""
+        header = json.dumps(
+            {"type": "voxels", "agent": self.agent, "size": self.size, "add": len(self.add),
+             "remove": len(self.remove), "total": self.total, "reset": self.reset}
+        ).encode()  # fmt: skip
+        header += b" " * (-len(header) % 4)
+        indices = np.concatenate([unpack_keys(self.add), unpack_keys(self.remove)]).astype("<i4")
+        return struct.pack("<I", len(header)) + header + indices.tobytes()
+
+
+def decode_voxels(data: bytes) -> tuple[dict[str, Any], NDArray[np.int32], NDArray[np.int32]]:
+    """A binary voxel message: its header and the indices ``(n, 3)`` added and removed (for tests and programs)."""
+    (length,) = struct.unpack_from("<I", data)
+    header = json.loads(data[4 : 4 + length])
+    indices = np.frombuffer(data, dtype="<i4", offset=4 + length).reshape(-1, 3)
+    return header, indices[: header["add"]], indices[header["add"] :]
 
 
 @dataclass(frozen=True)

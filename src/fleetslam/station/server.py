@@ -12,6 +12,7 @@ import json
 import logging
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,8 @@ from fleetslam._imports import require
 from fleetslam.middleware import Context
 from fleetslam.station.access import ConsoleAccess
 from fleetslam.station.bridge import StationBridge
-from fleetslam.station.protocol import TeleopLimits
+from fleetslam.station.protocol import TeleopLimits, VoxelUpdate
+from fleetslam.station.session import SessionBridge
 
 log = logging.getLogger(__name__)
 
@@ -28,12 +30,49 @@ STATIC_DIR = Path(__file__).parent / "static"
 VENDOR_FILES = ("three.module.js", "OrbitControls.js")
 
 
+BULK_WINDOW = 256 * 1024
+"""Bulk data (characters of text, bytes of binary messages) sent to a browser and not yet acknowledged: beyond it the
+server waits, keeping only the newest of each stream, so a busy page never has more than this ahead of a pong."""
+BULK_TYPES = frozenset({"image", "pose", "path", "keyframes", "stats", "voxels"})
+"""Streams whose newer message replaces an unsent older one (voxels: merged into it)."""
+
+
 @dataclass
 class _Client:
+    """A browser: what it watches, and what waits to be sent to it (control messages first, in order; then the bulk
+    streams, newest only, the longest-waiting stream first)."""
+
     socket: Any
     agent: str | None = None
     camera: str = "rgb"
     driving: set[str] = field(default_factory=set)
+    control: deque[str] = field(default_factory=deque)
+    bulk: dict[tuple[str, ...], dict[str, Any] | VoxelUpdate] = field(default_factory=dict)
+    sent: int = 0
+    """Bulk characters and bytes sent."""
+    acked: int = 0
+    """Bulk characters and bytes the page says it has handled."""
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def queue(self, message: dict[str, Any]) -> None:
+        kind = message.get("type")
+        if kind not in BULK_TYPES:
+            self.control.append(json.dumps(message))
+        elif kind == "voxels":
+            update = VoxelUpdate(
+                str(message["agent"]), float(message["size"]), message["add"], message["remove"],
+                int(message["total"]), bool(message.get("reset")),
+            )  # fmt: skip
+            pending = self.bulk.get(("voxels", update.agent))
+            if isinstance(pending, VoxelUpdate) and not update.reset:
+                pending.merge(update)
+            else:
+                self.bulk.pop(("voxels", update.agent), None)  # a reset goes to the back of the line
+                self.bulk[("voxels", update.agent)] = update
+        else:
+            key = (str(kind), str(message.get("agent", "")), str(message.get("source", message.get("kind", ""))))
+            self.bulk[key] = message  # an unsent older one is replaced, keeping its place in the line
+        self.wake.set()
 
 
 class StationServer:
@@ -46,23 +85,31 @@ class StationServer:
         teleop_rate_hz: rate of the command stream to the robots.
         access: the token and origins the WebSocket accepts (see :mod:`fleetslam.station.access`); default: a new
             random token, the console's own origin only. ``url`` carries the token.
+        bulk_window: bulk data a browser may have unacknowledged (see ``BULK_WINDOW``).
+        session: review this finished run's directory instead of a live fleet (no ``context`` needed; see
+            :mod:`fleetslam.station.session`).
     """
 
     def __init__(
         self,
-        context: Context,
+        context: Context | None,
         *,
         host: str = "127.0.0.1",
         port: int = 8080,
         limits: TeleopLimits | None = None,
         teleop_rate_hz: float = 20.0,
         access: ConsoleAccess | None = None,
+        bulk_window: int = BULK_WINDOW,
+        session: Path | None = None,
     ) -> None:
         require("aiohttp", "station")
+        if context is None and session is None:
+            raise ValueError("StationServer needs a context, or a session to review")
         self.host, self.port = host, port
         self.limits = limits or TeleopLimits()
         self.teleop_period = 1.0 / teleop_rate_hz
         self.access = access or ConsoleAccess.create()
+        self.bulk_window = bulk_window
         self.refused = 0
         """WebSocket requests refused (no or wrong token, foreign origin)."""
         self._context = context
@@ -71,9 +118,9 @@ class StationServer:
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
-        self.bridge: StationBridge | None = None
+        self.session = session
+        self.bridge: StationBridge | SessionBridge | None = None
         self._error: BaseException | None = None
-        self._pending: set[asyncio.Future[None]] = set()
 
     # -- lifecycle -------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -86,9 +133,17 @@ class StationServer:
         self._ready.wait(20)
         if self._error is not None:
             raise self._error
-        self.bridge = StationBridge(
-            self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
-        )
+        try:
+            if self.session is not None:
+                self.bridge = SessionBridge(self.session, self._emit_threadsafe)
+            else:
+                assert self._context is not None
+                self.bridge = StationBridge(
+                    self._context, self._emit_threadsafe, limits=self.limits, wanted_cameras=self._wanted_cameras
+                )
+        except BaseException:
+            self.stop()
+            raise
 
     @property
     def url(self) -> str:
@@ -166,14 +221,17 @@ class StationServer:
             raise web.HTTPForbidden(text=refusal + "\n")
         socket = web.WebSocketResponse(heartbeat=5.0, max_msg_size=16 * 1024 * 1024)
         await socket.prepare(request)
+        if request.query.get("role") == "link":
+            return await self._link(socket)
         client = _Client(socket)
-        self._clients[id(socket)] = client
         limits = {"max_linear": self.limits.max_linear, "max_angular": self.limits.max_angular}
         agents = self.bridge.agent_names() if self.bridge else []
-        await socket.send_str(json.dumps({"type": "hello", "agents": agents, "limits": limits}))
+        client.queue({"type": "hello", "agents": agents, "limits": limits})
         if self.bridge is not None:
             for message in self.bridge.snapshot():
-                await socket.send_str(json.dumps(message))
+                client.queue(message)
+        self._clients[id(socket)] = client
+        sender = asyncio.create_task(self._sender(client))
         try:
             async for frame in socket:
                 if frame.type == WSMsgType.TEXT:
@@ -181,10 +239,28 @@ class StationServer:
                 elif frame.type == WSMsgType.ERROR:
                     break
         finally:
+            sender.cancel()
             self._clients.pop(id(socket), None)
             if self.bridge is not None:
                 for agent in client.driving:
                     self.bridge.gate.release(agent)
+        return socket
+
+    async def _link(self, socket: Any) -> Any:
+        """The page's link indicator (a worker of its own, ``static/link.js``): pongs to its pings, nothing else."""
+        from aiohttp import WSMsgType
+
+        async for frame in socket:
+            if frame.type != WSMsgType.TEXT:
+                continue
+            try:
+                message = json.loads(frame.data)
+                if message["type"] == "ping":
+                    await socket.send_str(json.dumps({"type": "pong", "t": message.get("t")}))
+            except (ValueError, KeyError, TypeError):
+                log.warning("ignoring a malformed link message: %.80s", frame.data)
+            except (ConnectionError, RuntimeError):
+                break
         return socket
 
     async def _on_browser_message(self, client: _Client, text: str) -> None:
@@ -196,7 +272,13 @@ class StationServer:
             return
         bridge = self.bridge
         if kind == "ping":
-            await client.socket.send_str(json.dumps({"type": "pong", "t": message.get("t")}))
+            client.queue({"type": "pong", "t": message.get("t")})
+        elif kind == "ack":
+            try:
+                client.acked = max(client.acked, int(message.get("bytes", 0)))
+            except (TypeError, ValueError):
+                return
+            client.wake.set()
         elif kind == "select":
             client.agent = str(message.get("agent") or "") or None
         elif kind == "camera":
@@ -214,9 +296,13 @@ class StationServer:
             if engage:
                 bridge.gate.release(agent)
             ok, detail = await asyncio.to_thread(bridge.estop, agent, engage)
-            await client.socket.send_str(
-                json.dumps({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
-            )
+            client.queue({"type": "estop", "agent": agent, "engaged": engage, "ok": ok, "message": detail})
+        elif kind == "session_frame" and isinstance(bridge, SessionBridge):
+            try:
+                agent, t = str(message["agent"]), float(message["t"])
+            except (KeyError, TypeError, ValueError):
+                return
+            client.queue(await asyncio.to_thread(bridge.frame, agent, t))
         elif (kind.startswith("finding_") or kind == "measure_pick") and bridge is not None:
             await self._on_finding_message(client, kind, message)
 
@@ -249,7 +335,7 @@ class StationServer:
         except (KeyError, TypeError, ValueError) as err:
             log.warning("ignoring a malformed %s message: %s", kind, err)
             return
-        await self._send(client, json.dumps(reply))
+        client.queue(reply)
 
     async def _teleop_loop(self) -> None:
         next_tick = time.monotonic()
@@ -267,22 +353,36 @@ class StationServer:
         loop = self._loop
         if loop is None or loop.is_closed():
             return
-        text = json.dumps(message)
-        loop.call_soon_threadsafe(self._broadcast, text, agent_filter, message.get("kind"))
+        loop.call_soon_threadsafe(self._broadcast, message, agent_filter)
 
-    def _broadcast(self, text: str, agent_filter: str | None, kind: str | None) -> None:
+    def _broadcast(self, message: dict[str, Any], agent_filter: str | None) -> None:
         for client in list(self._clients.values()):
-            if agent_filter is not None and (client.agent != agent_filter or client.camera != kind):
+            if agent_filter is not None and (client.agent != agent_filter or client.camera != message.get("kind")):
                 continue
-            if client.socket.closed:
-                continue
-            task = asyncio.ensure_future(self._send(client, text))
-            self._pending.add(task)
-            task.add_done_callback(self._pending.discard)
+            if not client.socket.closed:
+                client.queue(message)
 
-    @staticmethod
-    async def _send(client: _Client, text: str) -> None:
+    async def _sender(self, client: _Client) -> None:
+        """Sends a browser's messages: control messages at once, bulk ones while the page keeps up (acknowledges
+        them) — so a pong waits behind at most ``bulk_window`` of bulk data, and a busy page gets the newest
+        image, pose and map instead of a backlog."""
+        socket = client.socket
         try:
-            await client.socket.send_str(text)
+            while not socket.closed:
+                await client.wake.wait()
+                client.wake.clear()
+                while client.control or (client.bulk and client.sent - client.acked < self.bulk_window):
+                    if client.control:
+                        await socket.send_str(client.control.popleft())
+                        continue
+                    item = client.bulk.pop(next(iter(client.bulk)))
+                    if isinstance(item, VoxelUpdate):
+                        data = item.encode()
+                        client.sent += len(data)
+                        await socket.send_bytes(data)
+                    else:
+                        text = json.dumps(item)
+                        client.sent += len(text)
+                        await socket.send_str(text)
         except (ConnectionError, RuntimeError) as err:
             log.debug("browser went away: %s", err)

@@ -5,7 +5,7 @@ import { OrbitControls } from "/static/vendor/OrbitControls.js";
 const COLORS = ["#39b5ff", "#ff7a45", "#3ddc84", "#c77dff", "#ffd166", "#ef476f"];
 const state = {
   socket: null, agents: [], selected: null, camera: "rgb", limits: { max_linear: 0.5, max_angular: 1.2 },
-  rtt: null, lastPong: 0, voxelCount: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
+  rtt: null, voxelCount: 0, renders: 0, voxelMessages: 0, received: 0, acked: 0, frameCount: 0, lastFrameSeq: 0, driveSent: 0,
   deadman: { key: false, button: false, pad: false }, keys: new Set(), stick: { v: 0, w: 0 }, estop: false,
 };
 window.fleetslam = state; // for tests and the curious
@@ -69,7 +69,7 @@ function heightColor(z, out) {
 function view(agent) {
   let v = agentViews.get(agent);
   if (v) return v;
-  v = { voxels: new Map(), cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
+  v = { voxels: new Map(), count: 0, keys: null, positions: null, colors: null, up: null, recolour: false, cloud: null, size: 0.05, dirty: false, paths: {}, poses: {}, keyframes: null };
   agentViews.set(agent, v);
   return v;
 }
@@ -153,7 +153,7 @@ function onFrame(msg) {
   placeFrames();
   const now = state.frames[msg.agent];
   if (!before.placement !== !now.placement || !before.mounting !== !now.mounting) { // "up" changed: recolour
-    for (const v of agentViews.values()) v.dirty = v.voxels.size > 0;
+    for (const v of agentViews.values()) { v.recolour = v.count > 0; v.dirty = v.count > 0; }
   }
 }
 // SLAM's pose and path where there is SLAM, else the wheel odometry's; never the ground truth (another frame).
@@ -185,43 +185,114 @@ state.frameOf = (agent, point = [0, 0, 0]) => {
 // Voxels are drawn as square point sprites one voxel wide (sizeAttenuation: world units), not as instanced cubes:
 // a fleet's maps hold a few hundred thousand occupied voxels, and on a machine without a GPU (software GL) twelve
 // lit triangles each took most of a core at ten frames a second; a sprite is one quad.
-function rebuildVoxels(agent, v) {
+// Voxels arrive as indices (i, j, k) in binary messages (centre: (index + 1/2) · size); kept as one number each, in
+// a slot of the agent's point buffers. An update writes only the voxels it adds and removes (a removed voxel's slot
+// takes the last one), and only those slots are uploaded: rebuilding a map of 200 000 voxels on every update blocked
+// the page for seconds on a loaded two-core machine (its pongs then arrived late: "link lost").
+const KEY_OFFSET = 65536, KEY_BASE = 131072; // 17 bits per axis: ±3.2 km at 5 cm, well within a double's 53 bits
+const voxelKey = (i, j, k) => ((i + KEY_OFFSET) * KEY_BASE + (j + KEY_OFFSET)) * KEY_BASE + (k + KEY_OFFSET);
+const voxelColor = new THREE.Color();
+function voxelBuffers(agent, v, capacity) {
+  const positions = new Float32Array(3 * capacity), colors = new Float32Array(3 * capacity), keys = new Float64Array(capacity);
+  if (v.positions) { positions.set(v.positions.subarray(0, 3 * v.count)); colors.set(v.colors.subarray(0, 3 * v.count)); keys.set(v.keys.subarray(0, v.count)); }
+  v.positions = positions; v.colors = colors; v.keys = keys;
   if (v.cloud) { v.cloud.removeFromParent(); v.cloud.geometry.dispose(); v.cloud.material.dispose(); }
-  const n = v.voxels.size;
-  const positions = new Float32Array(3 * n), colors = new Float32Array(3 * n);
-  const c = new THREE.Color();
-  const frame = frameOf(agent);
-  frame.updateWorldMatrix(true, false);
-  const e = frame.matrixWorld.elements; // coloured by height as drawn (a map frame's z may be ahead, not up)
-  let i = 0;
-  for (const [x, y, z] of v.voxels.values()) {
-    positions[i] = x; positions[i + 1] = y; positions[i + 2] = z;
-    heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], c);
-    colors[i] = c.r; colors[i + 1] = c.g; colors[i + 2] = c.b;
-    i += 3;
-  }
   const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
-  geometry.setAttribute("color", new THREE.BufferAttribute(colors, 3));
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3).setUsage(THREE.DynamicDrawUsage));
+  geometry.setAttribute("color", new THREE.BufferAttribute(colors, 3).setUsage(THREE.DynamicDrawUsage));
+  geometry.setDrawRange(0, v.count);
   const fleet = agent === "fleet";
   const material = new THREE.PointsMaterial({
     size: v.size, sizeAttenuation: true, vertexColors: true,
     transparent: fleet, opacity: fleet ? 0.35 : 1, depthWrite: !fleet,
   });
-  const points = new THREE.Points(geometry, material);
-  frameOf(agent).add(points);
-  v.cloud = points;
-  v.dirty = false;
+  v.cloud = new THREE.Points(geometry, material);
+  v.cloud.frustumCulled = false; // its bounding sphere is not recomputed as it grows
+  frameOf(agent).add(v.cloud);
+  v.dirtyFrom = Infinity; v.dirtyTo = -1; v.dirty = false;
 }
-function onVoxels(msg) {
+function setVoxel(v, slot, key) {
+  const k = (key % KEY_BASE) - KEY_OFFSET, rest = Math.floor(key / KEY_BASE);
+  const y = ((rest % KEY_BASE) - KEY_OFFSET + 0.5) * v.size, x = (Math.floor(rest / KEY_BASE) - KEY_OFFSET + 0.5) * v.size;
+  const z = (k + 0.5) * v.size, o = 3 * slot, e = v.up;
+  v.positions[o] = x; v.positions[o + 1] = y; v.positions[o + 2] = z;
+  heightColor(e[2] * x + e[6] * y + e[10] * z + e[14], voxelColor); // by height as drawn (a map frame's z may be ahead)
+  v.colors[o] = voxelColor.r; v.colors[o + 1] = voxelColor.g; v.colors[o + 2] = voxelColor.b;
+  v.keys[slot] = key;
+  v.voxels.set(key, slot);
+  v.dirtyFrom = Math.min(v.dirtyFrom, slot); v.dirtyTo = Math.max(v.dirtyTo, slot);
+}
+function frameUp(agent) {
+  const frame = frameOf(agent);
+  frame.updateWorldMatrix(true, false);
+  return frame.matrixWorld.elements.slice();
+}
+// Draws what changed since the last frame: new buffers when they grew or the frame turned (recoloured), else the slots.
+function rebuildVoxels(agent, v) {
+  if (!v.cloud || v.recolour) {
+    v.up = frameUp(agent);
+    v.recolour = false;
+    const keys = v.keys ? Array.from(v.keys.subarray(0, v.count)) : [];
+    voxelBuffers(agent, v, Math.max(1024, 2 * v.count));
+    keys.forEach((key, slot) => setVoxel(v, slot, key));
+  }
+  const geometry = v.cloud.geometry;
+  geometry.setDrawRange(0, v.count);
+  geometry.boundingSphere = null; // recomputed when a pick's ray needs it
+  if (v.dirtyTo >= v.dirtyFrom) {
+    for (const name of ["position", "color"]) {
+      const attribute = geometry.attributes[name];
+      attribute.clearUpdateRanges();
+      attribute.addUpdateRange(3 * v.dirtyFrom, 3 * (v.dirtyTo - v.dirtyFrom + 1));
+      attribute.needsUpdate = true;
+    }
+  }
+  v.dirtyFrom = Infinity; v.dirtyTo = -1; v.dirty = false;
+}
+// The centres drawn of an agent's voxels (tests and the curious).
+state.voxelCentres = (agent) => {
+  const v = agentViews.get(agent);
+  return v && v.positions ? Array.from(v.cloud.geometry.attributes.position.array.subarray(0, 3 * v.count)) : [];
+};
+// A binary voxel message (fleetslam.station.protocol.VoxelUpdate.encode): u32 header length, JSON header, int32
+// indices of the added voxels, then of the removed ones.
+function onVoxels(buffer) {
+  const length = new DataView(buffer).getUint32(0, true);
+  const msg = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+  const indices = new Int32Array(buffer, 4 + length);
   const v = view(msg.agent);
+  if (msg.reset || v.size !== msg.size) { v.voxels.clear(); v.count = 0; v.recolour = true; }
   v.size = msg.size;
-  if (msg.reset) v.voxels.clear();
-  // A voxel centre is at (k + 1/2)·size: rounding met two neighbours at the tie (and half the map vanished).
-  const key = (p) => p.map((x) => Math.floor(x / msg.size)).join(",");
-  for (const p of msg.remove) v.voxels.delete(key(p));
-  for (const p of msg.add) v.voxels.set(key(p), p);
+  if (!v.up) v.up = frameUp(msg.agent);
+  for (let n = 3 * msg.add, end = 3 * (msg.add + msg.remove); n < end; n += 3) {
+    const key = voxelKey(indices[n], indices[n + 1], indices[n + 2]), slot = v.voxels.get(key);
+    if (slot === undefined) continue;
+    v.voxels.delete(key);
+    const last = --v.count;
+    if (slot !== last) { // the last voxel moves into the freed slot
+      const moved = v.keys[last];
+      v.keys[slot] = moved; v.voxels.set(moved, slot);
+      if (!v.recolour) { // else every slot is written when the buffers are made
+        v.positions.copyWithin(3 * slot, 3 * last, 3 * last + 3); v.colors.copyWithin(3 * slot, 3 * last, 3 * last + 3);
+        v.dirtyFrom = Math.min(v.dirtyFrom, slot); v.dirtyTo = Math.max(v.dirtyTo, slot);
+      }
+    }
+  }
+  const needed = v.count + msg.add;
+  if (!v.keys || needed > v.keys.length) { // grow (doubling): new buffers, uploaded whole once
+    v.recolour = true;
+    if (v.keys) { const keys = v.keys; v.keys = new Float64Array(2 * needed); v.keys.set(keys.subarray(0, v.count)); }
+    else v.keys = new Float64Array(Math.max(1024, 2 * needed));
+    v.positions = v.colors = null;
+  }
+  for (let n = 0, end = 3 * msg.add; n < end; n += 3) {
+    const key = voxelKey(indices[n], indices[n + 1], indices[n + 2]);
+    if (v.voxels.has(key)) continue;
+    if (v.recolour) { v.keys[v.count] = key; v.voxels.set(key, v.count); v.count += 1; } // written when rebuilt
+    else { setVoxel(v, v.count, key); v.count += 1; }
+  }
   v.dirty = true;
+  state.voxelMessages += 1;
 }
 function lineFor(points, color, dashed) {
   const geometry = new THREE.BufferGeometry().setFromPoints(points.map((p) => new THREE.Vector3(p[0], p[1], p[2] + 0.02)));
@@ -355,6 +426,7 @@ function animate(now) {
   state.sceneChanged = false;
   lastRender = now;
   renderer.render(scene, camera3d);
+  state.renders += 1;
 }
 requestAnimationFrame(animate);
 
@@ -570,7 +642,8 @@ const SEVERITY_COLORS = { info: "#8fb8de", low: "#3ddc84", medium: "#ffd166", hi
 function findingParent(agent) { return frameOf(agent); }
 function findingPosition(f) {
   const poses = findings.keyframes.get(f.agent);
-  if (!poses || f.keyframe_id >= poses.length) return null;
+  if (!poses) return f.position || null; // no keyframes (a finished run's review): where it was last known
+  if (f.keyframe_id >= poses.length) return null;
   const [x, y, z, qx, qy, qz, qw] = poses[f.keyframe_id];
   const p = new THREE.Vector3(f.point[0], f.point[1], f.point[2]).applyQuaternion(new THREE.Quaternion(qx, qy, qz, qw));
   return [p.x + x, p.y + y, p.z + z];
@@ -813,8 +886,77 @@ renderer.domElement.addEventListener("pointerup", (e) => {
   addMeasurePoint({ source: "map", world: [voxel.x, voxel.y, voxel.z] });
 });
 
+// ---------------------------------------------------------------- reviewing a finished run
+// `fleetslam station --session DIR`: the run's maps and findings as they ended, and a time slider that replays each
+// robot's SLAM trajectory (marker and path up to the slider's time) and, when the run recorded its cameras, the
+// camera frame nearest that time (asked from the server).
+const session = { data: null, t: 0, timer: null, asked: 0 };
+state.session = session;
+function onSession(msg) {
+  session.data = msg;
+  const slider = document.getElementById("session-time");
+  slider.min = msg.start; slider.max = msg.end;
+  document.getElementById("session").hidden = false;
+  document.getElementById("session-title").textContent = `review of ${msg.run}`;
+  for (const agent of Object.keys(msg.agents)) view(agent).pathsFromTopic = { slam: true }; // the replay draws the path
+  setSessionTime(msg.end);
+}
+function sessionIndex(stamps, t) { // the last stamp at or before t, or -1
+  let lo = 0, hi = stamps.length;
+  while (lo < hi) { const mid = (lo + hi) >> 1; if (stamps[mid] <= t) lo = mid + 1; else hi = mid; }
+  return lo - 1;
+}
+function setSessionTime(t) {
+  const data = session.data;
+  session.t = t;
+  document.getElementById("session-time").value = t;
+  document.getElementById("session-time-out").textContent = `t = ${t.toFixed(1)} s`;
+  for (const [agent, track] of Object.entries(data.agents)) {
+    const i = Math.max(0, sessionIndex(track.stamps, t));
+    if (!track.poses.length) continue;
+    const [x, y, z, qx, qy, qz, qw] = track.poses[i];
+    onPose({ agent, source: "slam", x, y, z, q: [qx, qy, qz, qw] });
+    onPath({ agent, source: "slam", points: track.poses.slice(0, i + 1).map((p) => p.slice(0, 3)) });
+  }
+  state.sceneChanged = true;
+  const meta = document.getElementById("camera-meta");
+  if (!data.camera.includes(state.selected)) {
+    meta.textContent = "no camera in this run's recording: the trajectories are replayed";
+  } else if (performance.now() - session.asked > 200) { // at most five frames a second while scrubbing
+    session.asked = performance.now();
+    send({ type: "session_frame", agent: state.selected, t });
+  }
+}
+document.getElementById("session-time").oninput = (e) => setSessionTime(parseFloat(e.target.value));
+document.getElementById("session-play").onclick = () => {
+  const button = document.getElementById("session-play");
+  if (session.timer) { clearInterval(session.timer); session.timer = null; button.textContent = "play"; return; }
+  if (session.t >= session.data.end) setSessionTime(session.data.start);
+  button.textContent = "pause";
+  session.timer = setInterval(() => {
+    const t = Math.min(session.data.end, session.t + 0.2);
+    setSessionTime(t);
+    if (t >= session.data.end) document.getElementById("session-play").click();
+  }, 200);
+};
+
 // ---------------------------------------------------------------- connection
 function send(msg) { if (state.socket && state.socket.readyState === 1) state.socket.send(JSON.stringify(msg)); }
+// The server sends the bulk streams only while this page keeps up: it keeps at most a window of them unacknowledged
+// (newest only meanwhile), so a pong never waits behind a backlog of images and maps in a busy page.
+const BULK_TYPES = new Set(["image", "pose", "path", "keyframes", "stats", "voxels"]);
+const ACK_EVERY = 32 * 1024;
+function handled(size, bulk) {
+  if (!bulk) return;
+  state.received += size;
+  if (state.received - state.acked >= ACK_EVERY) ack();
+}
+function ack() {
+  if (state.received === state.acked) return;
+  state.acked = state.received;
+  send({ type: "ack", bytes: state.received });
+}
+setInterval(ack, 100);
 function connect() {
   // The console's token comes with the URL it printed; kept for reloads of this tab, passed on to the WebSocket.
   const token = new URLSearchParams(location.search).get("token") || sessionStorage.getItem("fleetslam-token") || "";
@@ -822,8 +964,14 @@ function connect() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
   const socket = new WebSocket(`${scheme}://${location.host}/ws?token=${encodeURIComponent(token)}`);
   state.socket = socket;
+  socket.binaryType = "arraybuffer";
   socket.onmessage = (event) => {
+    if (typeof event.data !== "string") { // binary: voxels, a bulk stream
+      onVoxels(event.data); state.sceneChanged = true; handled(event.data.byteLength, true);
+      return;
+    }
     const msg = JSON.parse(event.data);
+    handled(event.data.length, BULK_TYPES.has(msg.type));
     if (findingsOnMessage(msg)) return;
     switch (msg.type) {
       case "hello":
@@ -837,27 +985,42 @@ function connect() {
         renderAgents();
         placeFrames();
         break;
-      case "voxels": onVoxels(msg); state.sceneChanged = true; break;
       case "pose": onPose(msg); state.sceneChanged = true; break;
       case "path": onPath(msg); state.sceneChanged = true; break;
       case "keyframes": onKeyframes(msg); state.sceneChanged = true; break;
       case "frame": onFrame(msg); break;
       case "image": onImage(msg); break;
       case "stats": onStats(msg); break;
-      case "pong":
-        state.rtt = performance.now() - msg.t; state.lastPong = performance.now();
-        break;
+      case "session": onSession(msg); break;
+      case "session_frame": if (!msg.ok) document.getElementById("camera-meta").textContent = msg.message; break;
       case "estop": onEstop(msg); break;
     }
   };
-  socket.onopen = () => { if (state.selected) send({ type: "select", agent: state.selected }); send({ type: "camera", kind: state.camera }); };
-  socket.onclose = () => { state.rtt = null; setTimeout(connect, 1000); };
+  socket.onopen = () => {
+    state.received = state.acked = 0; // counted per connection
+    showLink();
+    if (state.selected) send({ type: "select", agent: state.selected });
+    send({ type: "camera", kind: state.camera });
+  };
+  socket.onclose = () => { state.rtt = null; showLink(); setTimeout(connect, 1000); };
 }
-setInterval(() => {
-  send({ type: "ping", t: performance.now() });
+// The link indicator shows what its worker (link.js) judges from pongs on a connection of its own; "lost" too while
+// this page's connection is not open.
+state.link = { state: "connecting", rtt: null };
+function showLink() {
   const link = document.getElementById("link"), text = document.getElementById("link-text");
-  const fresh = state.socket && state.socket.readyState === 1 && state.rtt !== null && performance.now() - state.lastPong < 3000;
-  link.className = "link" + (fresh ? (state.rtt > 150 ? " slow" : " ok") : "");
-  text.textContent = fresh ? `link ok · RTT ${state.rtt.toFixed(1)} ms` : "link lost";
-}, 1000);
+  const open = state.socket && state.socket.readyState === 1;
+  const { state: judged, rtt } = state.link;
+  const fresh = open && judged === "ok";
+  state.rtt = fresh ? rtt : null;
+  link.className = "link" + (fresh ? (rtt > 150 ? " slow" : " ok") : "");
+  text.textContent = fresh ? `link ok · RTT ${rtt.toFixed(1)} ms` : open && judged === "connecting" ? "connecting…" : "link lost";
+}
+const linkWorker = new Worker("/static/link.js");
+linkWorker.onmessage = (event) => { state.link = event.data; showLink(); };
+{
+  const token = new URLSearchParams(location.search).get("token") || sessionStorage.getItem("fleetslam-token") || "";
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  linkWorker.postMessage({ url: `${scheme}://${location.host}/ws?role=link&token=${encodeURIComponent(token)}` });
+}
 connect();
