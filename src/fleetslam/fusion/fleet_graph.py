@@ -373,6 +373,17 @@ class FleetGraph:
             ids = sorted(corrected)
             T_fleet_map = fit_frames([mirror.poses[i] for i in chains[agent]], [solved[i] for i in chains[agent]])
             solution[agent] = AgentPlacement(T_fleet_map, corrected, {i: mirror.stamps.get(i, 0.0) for i in ids})
+        # The fleet frame is the reference's map frame: its own rigid fit is the identity by definition. The solve
+        # bends its chain too (the prior holds its first keyframe only), and that fit moved by centimetres and
+        # tenths of a degree from solve to solve, re-landing every map with it; everything is re-expressed so that
+        # the reference's fit stays the identity and only the others' placements move relative to it.
+        if reference in solution:
+            to_fleet = np.linalg.inv(solution[reference].T_fleet_map)
+            solution = {
+                agent: AgentPlacement(to_fleet @ p.T_fleet_map, {i: to_fleet @ pose for i, pose in p.poses.items()},
+                                      p.stamps)
+                for agent, p in solution.items()
+            }  # fmt: skip
         self._solution = solution
         kept = [c for c in between if c.key in self._kept]
         rejected = [c for c in between if c.key not in self._kept]

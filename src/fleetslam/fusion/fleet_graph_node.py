@@ -46,8 +46,8 @@ class FleetGraphConfig(ConfigModel):
     """Parameters of the fleet back-end node."""
 
     reference: str = ""
-    """The agent whose map frame is the fleet frame; empty: the alphabetically first agent seen (as the agents'
-    SLAM chooses it, ``fleet_reference``)."""
+    """The agent whose map frame is the fleet frame; empty: the alphabetically first of ``agents`` when they are
+    listed, else of the agents seen (as the agents' SLAM chooses it, ``fleet_reference``)."""
     agents: list[str] = Field(default_factory=list)
     """Agents to optimise; empty: every agent publishing ``graph_updates``."""
     frame_id: str = "fleet"
@@ -92,8 +92,12 @@ class FleetGraphNode:
         self.node = node
         self.config = config or FleetGraphConfig()
         c = self.config
+        # With the agents listed, the reference is known from the start (the first of them, as their SLAM chooses
+        # it): an agent heard before the reference must not become the fleet frame for a moment (a map landed there
+        # would jump metres once the reference is heard).
+        reference = c.reference or (min(c.agents) if c.agents else "")
         self.graph = FleetGraph(
-            reference=c.reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
+            reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
             inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
             recent_keyframes=c.recent_keyframes, tolerance=ConsistencyTolerance(), min_closures=c.min_closures,
             min_places=c.min_places, dominance=c.dominance,

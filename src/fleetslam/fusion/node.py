@@ -47,9 +47,10 @@ class FleetMapConfig(ConfigModel):
     require_placement: bool = True
     """Leave an agent out of the fused map until it has a start pose or has published its place in the fleet frame
     (False: fuse it at the fleet origin meanwhile)."""
-    placement_tolerance: float = Field(default=0.02, gt=0)
-    """A published placement that moved less than this (m, and a tenth of it in radians) is not applied again
-    (applying one re-lands the agent's whole map, and SLAM refines a placement by millimetres with every closure)."""
+    placement_tolerance: float = Field(default=0.05, gt=0)
+    """A published placement that moved less than this (m, and a tenth of it in radians: that much at 10 m) is not
+    applied again: applying one re-lands the agent's whole map, and the placements are refined by millimetres with
+    every closure and solve; by default one voxel of the fused map, which a smaller move barely changes."""
     agents: list[str] = Field(default_factory=list)
     """Agents to fuse; empty: every agent publishing `map/octomap`."""
     publish_rate: float = Field(default=0.5, gt=0)
@@ -175,9 +176,12 @@ class FleetMapNode:
                 moved = invert(known) @ pose
                 if np.linalg.norm(moved[:3, 3]) < tolerance and rotation_angle(moved) < tolerance / 10:
                     continue
+            by = "the fleet back-end" if agent in self.backend_placed else "its SLAM"
             if known is None:
-                by = "the fleet back-end" if agent in self.backend_placed else "its SLAM"
                 log.info("%s: placed in the fleet frame by %s", agent, by)
+            else:
+                log.info("%s: map re-landed (placement by %s moved %.3f m, %.2f°)", agent, by,
+                         float(np.linalg.norm(moved[:3, 3])), float(np.degrees(rotation_angle(moved))))  # fmt: skip
             self.placed[agent] = pose
             self.fleet.set_transform(agent, pose)
             self._version += 1
