@@ -22,11 +22,12 @@ from collections.abc import Iterator
 
 import numpy as np
 from tests.drivers.test_node import BASE_CAMERA
+from tests.integration.test_collaborative_slam import drive
 from tests.slam.textured_room import make_textures, render
 
 from fleetslam.datasets.base import Intrinsics, RGBDFrame
 from fleetslam.drivers.node import CameraNode
-from fleetslam.geometry import invert, pose_from_planar
+from fleetslam.geometry import invert
 from fleetslam.middleware import Context, Node
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
@@ -34,15 +35,16 @@ from fleetslam.slam.pipeline import SlamPipeline
 
 INTRINSICS = Intrinsics(262.5, 262.5, 159.5, 119.5, 320, 240)
 ROUTES = {"c3po": (-1.6, 0.8, 0.0), "r2d2": (0.9, -1.5, 0.25)}
-"""Each agent drives along x (camera looking along +x at the far wall), from x0 to x1 at y, and back: the two
-routes overlap (the agents see the same wall from nearby places), as in ``test_collaborative_slam.py``."""
+"""Each agent drives from (x0, y) x1 - x0 metres along its heading and back, its camera looking into the room's far
+corner (two walls: a peer's view of one plane is not believed): the two routes overlap, as in
+``test_collaborative_slam.py`` (whose ``drive`` makes the poses)."""
 VIEWS = 25
 RATE_HZ = 5.0
 
 
 def route(agent: str) -> list[np.ndarray]:
     x0, x1, y = ROUTES[agent]
-    return [pose_from_planar(x0 + (x1 - x0) * k / (VIEWS - 1), y, 0.0) @ BASE_CAMERA for k in range(VIEWS)]
+    return drive(x0, x1, y, VIEWS)
 
 
 class BackAndForthCamera:
