@@ -469,7 +469,7 @@ class JointPlacement:
             reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
             inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
             recent_keyframes=c.recent_keyframes, min_closures=c.min_closures, min_places=c.min_places,
-            dominance=c.dominance,
+            dominance=c.dominance, gnc_budget=c.gnc_budget,
         )  # fmt: skip
         self.solved_at = -math.inf
         self.solves = 0

@@ -391,6 +391,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "gnc_solves": int(sum(robust)),
         "agents_placed": int(last.get("agents_placed", 0)), "variables": int(last.get("variables", 0)),
         "closures_kept": int(last.get("closures_kept", 0)), "closures_rejected": int(last.get("closures_rejected", 0)),
+        "closures_pending": int(last.get("closures_pending", 0)),
         "graph_requests": int(last.get("graph_requests", 0)),
         "load_average": [round(v, 2) for v in os.getloadavg()], "cores": os.cpu_count(),
         "machine": "shared: other work running, this benchmark and the back-end niced (nice 10)",

@@ -175,3 +175,49 @@ def test_the_fleet_frame_follows_the_first_agent_as_agents_appear() -> None:
     assert solution is not None and set(solution.placements) == {"c3po", "r2d2"}
     np.testing.assert_allclose(solution.placements["c3po"].T_fleet_map, np.eye(4), atol=1e-3)
     np.testing.assert_allclose(solution.placements["r2d2"].T_fleet_map, R2D2_MAP, atol=1e-3)
+
+
+def test_many_agents_admitted_at_once_are_judged_a_few_per_solve_within_the_budget() -> None:
+    """Eight agents recognise the reference at once (their first closures arrive together, as 16 copies of a run do
+    in ``benchmarks/fleet_backend.py``): one GNC over all of them would hold every agent's new keyframes back while it
+    runs, so each solve judges only as many agents as ``gnc_budget`` variables hold, and the others wait."""
+    c3po, _ = _truth()
+    rng = np.random.default_rng(7)
+    names = [f"r2d2_{k}" for k in range(8)]
+    frames = {name: pose_from_planar(*rng.uniform(-10.0, 10.0, 2), rng.uniform(-np.pi, np.pi)) for name in names}
+    truths = {name: {i: pose_from_planar(0.5 * i, 0.3 * (k + 1), 0.0) for i in range(STEPS)}
+              for k, name in enumerate(names)}  # fmt: skip
+
+    def fleet_with(budget: int) -> FleetGraph:
+        fleet = FleetGraph(reference="c3po", gnc_budget=budget)
+        fleet.apply("c3po", _update(c3po, [], epoch=11))
+        for name in names:
+            truth = truths[name]
+            closures = [ClosureReport(name, j, "c3po", j, invert(truth[j]) @ c3po[j], 11) for j in ENDS]
+            if name == names[3]:  # the shelf 2 m on looks the same: its keyframe 20 "sees" c3po's 24 as its 20
+                closures.append(ClosureReport(name, 20, "c3po", 24, invert(truth[20]) @ c3po[20], 11))
+            fleet.apply(name, _update(_drifted(truth, frames[name], 0.0), closures, 22))
+        return fleet
+
+    unbounded = fleet_with(10_000).solve()  # all at once: the work one solve would do without the budget
+    assert unbounded is not None and len(unbounded.placements) == 9 and not unbounded.pending
+    budget = 64  # the reference and two agents: 21 + 2 × 20 variables (every 5th, the newest 10, the closures')
+    assert unbounded.gnc_variables > 2.5 * budget
+    fleet = fleet_with(budget)
+    solutions = []
+    while (solution := fleet.solve()) is not None:
+        solutions.append(solution)
+        assert solution.robust and 0 < solution.gnc_variables <= budget  # every solve's GNC within the budget
+        assert len(solutions) <= 5, "8 agents, 2 a solve: 4 solves, and one to spare"
+    placed = [len(s.placements) for s in solutions]
+    assert placed[0] == 3 and placed == sorted(placed) and placed[-1] == 9, placed
+    assert len(solutions[0].pending) == 6 * len(ENDS) + 1  # the others' closures wait, unused
+    final = solutions[-1]
+    assert not final.pending and fleet.solve() is None  # all judged: nothing left to do
+    # As robust as one GNC over everything: the wrong closure rejected, every right one kept, the same placements.
+    assert [c.key for c in final.rejected] == [("c3po", 24, names[3], 20)]
+    assert [c.key for c in unbounded.rejected] == [("c3po", 24, names[3], 20)]
+    assert len(final.kept) == len(unbounded.kept) == 8 * len(ENDS)
+    for name in names:
+        np.testing.assert_allclose(final.placements[name].T_fleet_map, frames[name], atol=1e-3)
+        np.testing.assert_allclose(unbounded.placements[name].T_fleet_map, frames[name], atol=1e-3)

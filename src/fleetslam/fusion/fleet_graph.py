@@ -20,10 +20,19 @@ enough mutually consistent closures, at more than one place of either agent, unr
 places on its own keyframes, and the pair is connected when either would be); its rigid fit places a newly connected
 agent (initial values), after which the previous solution warm-starts every solve.
 
-Incremental and budgeted: :meth:`FleetGraph.solve` does nothing when no graph changed since the last solve; GNC
-runs only when the set of closures between placed agents changed (a new closure, a placed agent), otherwise plain
-Levenberg–Marquardt with the closures GNC kept, warm-started from the previous solution (new keyframes start where
-their agent's previous placement puts them), which converges in one or two iterations. The caller bounds the rate.
+Incremental and budgeted: :meth:`FleetGraph.solve` does nothing when no graph changed since the last solve and no
+closure waits for a verdict. A closure between connected agents is used only once GNC judged it. GNC runs on a group
+of agents, not on the whole fleet: those whose closures have waited longest, as many as ``gnc_budget`` keyframe
+variables hold (at least one closure's two agents; a closure is taken once one of its agents is placed or taken),
+with every closure touching them judged (again, for the old ones) and the other agents' keyframes they join held
+where the last solve placed them; a closure waiting beyond the budget is judged in a later solve (``pending``), and
+an agent whose first closures wait is placed once they are judged. Then plain Levenberg–Marquardt over every placed
+agent with the closures GNC kept, warm-started from the previous solution (new keyframes start where their agent's
+previous placement puts them), which converges in one or two iterations. So one solve's work is bounded however
+many agents change at once (in ``benchmarks/fleet_backend.py`` every agent's closures arrive together, and one GNC
+over all 32 agents, 1700 variables, took 0.7 s, every agent's new keyframes waiting meanwhile). The caller bounds
+the rate.
+
 Why a batch solve and not iSAM2: the agents re-optimise their own graphs (a loop closure moves every keyframe of
 that agent), which changes every intra-agent factor of that agent; iSAM2 would have to remove and re-add them all,
 and GNC has no incremental form anyway. A warm-started batch solve of a chain-like graph is linear in the number
@@ -127,15 +136,19 @@ class FleetSolution:
     kept: list[FleetClosure]
     """Closures between placed agents that GNC believes."""
     rejected: list[FleetClosure]
-    """Closures between placed agents that GNC gave weight 0 (or that are still pending for lack of evidence)."""
+    """Closures between placed agents that GNC gave weight 0."""
     robust: bool
-    """GNC ran (the closures changed); else Levenberg–Marquardt with the ``kept`` closures."""
+    """GNC judged closures in this solve; else only Levenberg–Marquardt with the ``kept`` closures."""
     keyframes: int
     """Variables of the solve."""
     seconds: float
     """Wall time of the solve (building the graph included)."""
     cpu_seconds: float = 0.0
     """CPU time of the solving thread (what the solve costs, whatever else the machine runs)."""
+    pending: list[FleetClosure] = field(default_factory=list)
+    """Closures between connected agents that wait for GNC's verdict (the next solves judge them; not used yet)."""
+    gnc_variables: int = 0
+    """Variables of this solve's GNC (0: none ran); at most ``gnc_budget`` unless one closure's agents need more."""
 
 
 @dataclass
@@ -159,6 +172,10 @@ class FleetGraph:
     """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
     max_iterations: int = 20
     """Levenberg–Marquardt iterations per solve (each GNC step too)."""
+    gnc_budget: int = 200
+    """Most variables of one solve's GNC: closures waiting for a verdict are judged a group of agents at a time
+    (those waiting longest first, as many agents as this many of their keyframe variables hold, at least the two of
+    one closure), the rest in the next solves; see the module docstring."""
     coarse_stride: int = 5
     """Of an agent's older keyframes, every ``coarse_stride``-th is a variable (and every closure's keyframe); the
     ones between follow their corrections. 1: every keyframe is a variable."""
@@ -177,9 +194,13 @@ class FleetGraph:
     _decisions: dict[tuple[str, str], Decision] = field(default_factory=dict)
     _in_pairs: set[ClosureKey] = field(default_factory=set)
     _solution: dict[str, AgentPlacement] = field(default_factory=dict)
-    _judged: frozenset[ClosureKey] = frozenset()
-    """The closures the last GNC judged; ``_kept`` those it kept."""
-    _kept: frozenset[ClosureKey] = frozenset()
+    _verdicts: dict[ClosureKey, bool] = field(default_factory=dict)
+    """GNC's last verdict on each closure it judged (True: kept); the others wait for one."""
+    _pending_since: dict[ClosureKey, int] = field(default_factory=dict)
+    """The solve a closure waiting for a verdict was first seen in (the longest waiting are judged first)."""
+    _solves: int = 0
+    _odometry_noise: dict[int, Any] = field(default_factory=dict)
+    """Noise model of an odometry factor over this many keyframe steps."""
     _solved_reference: str | None = None
 
     # -- input ---------------------------------------------------------------------------------------------------
@@ -212,7 +233,8 @@ class FleetGraph:
             self._decisions.pop(pair, None)
         self._in_pairs = {k for k in self._in_pairs if agent not in (k[0], k[2])}
         self._solution.pop(agent, None)
-        self._judged = frozenset()  # its next run's closures may reuse the same keyframe ids: judged afresh
+        # Its next run's closures may reuse the same keyframe ids: judged afresh.
+        self._verdicts = {k: v for k, v in self._verdicts.items() if agent not in (k[0], k[2])}
         if was_reference:
             self._solution.clear()  # the fleet frame itself is new
         self.changed = True
@@ -291,81 +313,56 @@ class FleetGraph:
 
     # -- the solve ------------------------------------------------------------------------------------------------
     def solve(self) -> FleetSolution | None:
-        """Re-optimise if a graph changed since the last solve (else None); see the module docstring."""
+        """Re-optimise if a graph changed since the last solve, or closures still wait for a verdict (else None); see
+        the module docstring."""
         if not self.changed:
             return None
         self.changed = False
+        self._solves += 1
         started, started_cpu = time.perf_counter(), time.thread_time()
-        g = _gtsam()
         reference = self.reference_agent()
         if reference != self._solved_reference:
             # The fleet frame is another agent's map frame now (an alphabetically earlier agent appeared, or the
             # reference restarted): the previous solution is in the old frame and must not warm-start the new one.
-            self._solution, self._judged, self._kept = {}, frozenset(), frozenset()
+            self._solution, self._verdicts, self._pending_since = {}, {}, {}
             self._solved_reference = reference
         closures = self.closures()
         self._update_pairs(closures.values())
         connected = self.connected()
-        placed = sorted(a for a in connected if self.agents[a].mirror.poses)
-        if not placed:
+        candidates = {a for a in connected if self.agents[a].mirror.poses}
+        if reference not in candidates:
             self._solution = {}
             return FleetSolution({}, [], [], False, 0, time.perf_counter() - started, time.thread_time() - started_cpu)
-        between = [c for c in closures.values() if c.a in placed and c.b in placed and c.a != c.b]
-        endpoints: dict[str, set[int]] = {}
-        for c in between:
-            endpoints.setdefault(c.a, set()).add(c.a_id)
-            endpoints.setdefault(c.b, set()).add(c.b_id)
-        graph = g.NonlinearFactorGraph()
-        values = g.Values()
-        odometry_noise: dict[int, Any] = {}
-        chains: dict[str, list[int]] = {}
-        for agent in placed:
-            own = self.agents[agent].mirror.poses
-            ids = sorted(own)
-            chain = chains[agent] = self._chain(ids, endpoints.get(agent, set()))
-            previous = self._solution.get(agent)
-            T_fleet_map = previous.T_fleet_map if previous is not None else connected[agent]
-            for i in chain:
-                guess = previous.poses.get(i) if previous is not None else None
-                values.insert(self._key(agent, i), g.Pose3(guess if guess is not None else T_fleet_map @ own[i]))
-            first = self._key(agent, chain[0])
-            if agent == reference:
-                graph.add(g.PriorFactorPose3(first, g.Pose3(own[chain[0]]), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
-            else:
-                graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
-            index = {i: k for k, i in enumerate(ids)}
-            for (i, j), relative in zip(itertools.pairwise(chain), _steps([own[i] for i in chain]), strict=True):
-                steps = index[j] - index[i]
-                if steps not in odometry_noise:  # the steps' errors add up: sigma grows with their square root
-                    odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(_sigmas(self.odometry_sigma) * np.sqrt(steps))
-                graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j), g.Pose3(relative),
-                                               odometry_noise[steps]))  # fmt: skip
-        known = int(graph.size())
-        judged = frozenset(c.key for c in between)
-        robust = judged != self._judged
-        used = between if robust else [c for c in between if c.key in self._kept]
+        between = [c for c in closures.values() if c.a in candidates and c.b in candidates and c.a != c.b]
+        self._verdicts = {k: v for k, v in self._verdicts.items() if k in closures}
+        waiting = [c for c in between if c.key not in self._verdicts]
+        self._pending_since = {c.key: self._pending_since.get(c.key, self._solves) for c in waiting}
+        placed = {a for a in self._solution if a in candidates} | {reference}
+        group = self._group(sorted(waiting, key=lambda c: (self._pending_since[c.key], c.key)), placed, between)
+        judged = [c for c in between if (c.a in group or c.b in group) and self._judgeable(c, group)]
+        group &= {a for c in judged for a in (c.a, c.b)}  # an agent is placed once a closure of it was judged
+        initial = {a: p.T_fleet_map for a, p in self._solution.items() if a in candidates}
+        initial.update({a: connected[a] for a in placed | group if a not in initial})
+        gnc_variables = 0
+        if judged:
+            judged_fits, gnc_variables = self._judge(sorted(group), judged, initial, reference)
+            initial.update({a: fit for a, fit in judged_fits.items() if a not in self._solution})
+        placed |= group
+        used = [c for c in between if c.a in placed and c.b in placed and self._verdicts.get(c.key, False)]
+        g = _gtsam()
+        graph, values = g.NonlinearFactorGraph(), g.Values()
+        endpoints = _endpoints(used)
+        chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference)
+                  for agent in sorted(placed)}  # fmt: skip
         closure_noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
         for c in used:
             graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative),
                                            closure_noise))  # fmt: skip
         lm = g.LevenbergMarquardtParams()
         lm.setMaxIterations(self.max_iterations)
-        if robust and used:
-            params = g.GncLMParams(lm)
-            params.setLossType(g.GncLossType.TLS)
-            params.setKnownInliers(list(range(known)))
-            optimizer = g.GncLMOptimizer(graph, values, params)
-            optimizer.setInlierCostThresholdsAtProbability(self.inlier_probability)
-            result = optimizer.optimize()
-            weights = np.asarray(optimizer.getWeights())[known:]
-            self._kept = frozenset(c.key for c, w in zip(used, weights, strict=True) if w > 0.5)
-            self._judged = judged
-        else:
-            result = g.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
-            if robust:
-                self._kept, self._judged = frozenset(), judged
+        result = g.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
         solution = {}
-        for agent in placed:
+        for agent in sorted(placed):
             mirror = self.agents[agent].mirror
             solved = {i: np.asarray(result.atPose3(self._key(agent, i)).matrix(), dtype=np.float64)
                       for i in chains[agent]}  # fmt: skip
@@ -377,18 +374,117 @@ class FleetGraph:
         # bends its chain too (the prior holds its first keyframe only), and that fit moved by centimetres and
         # tenths of a degree from solve to solve, re-landing every map with it; everything is re-expressed so that
         # the reference's fit stays the identity and only the others' placements move relative to it.
-        if reference in solution:
-            to_fleet = np.linalg.inv(solution[reference].T_fleet_map)
-            solution = {
-                agent: AgentPlacement(to_fleet @ p.T_fleet_map, {i: to_fleet @ pose for i, pose in p.poses.items()},
-                                      p.stamps)
-                for agent, p in solution.items()
-            }  # fmt: skip
+        to_fleet = np.linalg.inv(solution[reference].T_fleet_map)
+        solution = {
+            agent: AgentPlacement(to_fleet @ p.T_fleet_map, {i: to_fleet @ pose for i, pose in p.poses.items()},
+                                  p.stamps)
+            for agent, p in solution.items()
+        }  # fmt: skip
         self._solution = solution
-        kept = [c for c in between if c.key in self._kept]
-        rejected = [c for c in between if c.key not in self._kept]
-        return FleetSolution(solution, kept, rejected, robust and bool(used), int(values.size()),
-                             time.perf_counter() - started, time.thread_time() - started_cpu)  # fmt: skip
+        among = [c for c in between if c.a in placed and c.b in placed]
+        kept = [c for c in among if self._verdicts.get(c.key) is True]
+        rejected = [c for c in among if self._verdicts.get(c.key) is False]
+        pending = [c for c in between if c.key not in self._verdicts]
+        self.changed = self.changed or bool(pending)  # the rest are judged in the next solves
+        return FleetSolution(solution, kept, rejected, bool(judged), int(values.size()),
+                             time.perf_counter() - started, time.thread_time() - started_cpu, pending,
+                             gnc_variables)  # fmt: skip
+
+    def _group(self, waiting: list[FleetClosure], placed: set[str], between: list[FleetClosure]) -> set[str]:
+        """The agents whose closures this solve judges: those of the closures waiting longest (``waiting`` is in that
+        order), as many as ``gnc_budget`` variables hold (at least one closure's); a closure is taken only when one of
+        its agents is placed or taken already (the others are held where they are placed)."""
+        endpoints = _endpoints(between)
+        size = {a: len(self._chain(sorted(self.agents[a].mirror.poses), endpoints.get(a, set())))
+                for a in endpoints}  # fmt: skip
+        group: set[str] = set()
+        variables, grew = 0, True
+        while grew:  # again: a closure anchored by an agent taken after it was looked at
+            grew = False
+            for c in waiting:
+                new = {c.a, c.b} - group
+                if not new or not {c.a, c.b} & (placed | group):
+                    continue
+                cost = sum(size[a] for a in new)
+                if group and variables + cost > self.gnc_budget:
+                    continue
+                group |= new
+                variables += cost
+                grew = True
+        return group
+
+    def _judgeable(self, closure: FleetClosure, group: set[str]) -> bool:
+        """Both of the closure's keyframes are variables of the group's GNC or placed by the last solve (held)."""
+        return all(agent in group or (agent in self._solution and i in self._solution[agent].poses)
+                   for agent, i in ((closure.a, closure.a_id), (closure.b, closure.b_id)))  # fmt: skip
+
+    def _judge(
+        self, group: list[str], closures: list[FleetClosure], initial: dict[str, Pose], reference: str
+    ) -> tuple[dict[str, Pose], int]:
+        """GNC (truncated least squares) over ``group``'s keyframes and ``closures`` (each touching the group), the
+        other agents' keyframes held where the last solve put them, odometry known inliers: a verdict on each closure.
+        Returns the group's placements (rigid fits of the solved chains) and the variables solved."""
+        g = _gtsam()
+        graph, values = g.NonlinearFactorGraph(), g.Values()
+        endpoints = _endpoints(closures)
+        chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference)
+                  for agent in group}  # fmt: skip
+        held = g.noiseModel.Isotropic.Sigma(6, 1e-4)
+        for c in closures:
+            for agent, i in ((c.a, c.a_id), (c.b, c.b_id)):
+                key = self._key(agent, i)
+                if agent not in chains and not values.exists(key):
+                    pose = g.Pose3(self._solution[agent].poses[i])
+                    values.insert(key, pose)
+                    graph.add(g.PriorFactorPose3(key, pose, held))
+        known = int(graph.size())
+        closure_noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
+        for c in closures:
+            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative),
+                                           closure_noise))  # fmt: skip
+        lm = g.LevenbergMarquardtParams()
+        lm.setMaxIterations(self.max_iterations)
+        params = g.GncLMParams(lm)
+        params.setLossType(g.GncLossType.TLS)
+        params.setKnownInliers(list(range(known)))
+        optimizer = g.GncLMOptimizer(graph, values, params)
+        optimizer.setInlierCostThresholdsAtProbability(self.inlier_probability)
+        result = optimizer.optimize()
+        weights = np.asarray(optimizer.getWeights())[known:]
+        self._verdicts.update({c.key: bool(w > 0.5) for c, w in zip(closures, weights, strict=True)})
+        fits = {}
+        for agent, chain in chains.items():
+            own = self.agents[agent].mirror.poses
+            solved = [np.asarray(result.atPose3(self._key(agent, i)).matrix()) for i in chain]
+            fits[agent] = fit_frames([own[i] for i in chain], solved)
+        return fits, sum(len(chain) for chain in chains.values())
+
+    def _add_chain(self, graph: Any, values: Any, agent: str, endpoints: set[int], T_fleet_map: Pose,
+                   reference: str) -> list[int]:  # fmt: skip
+        """``agent``'s keyframe chain into ``graph``: its variables (warm-started from the last solution, new ones
+        where ``T_fleet_map`` puts them), the odometry between them, the prior on its first one. Returns the chain."""
+        g = _gtsam()
+        own = self.agents[agent].mirror.poses
+        ids = sorted(own)
+        chain = self._chain(ids, endpoints)
+        previous = self._solution.get(agent)
+        for i in chain:
+            guess = previous.poses.get(i) if previous is not None else None
+            values.insert(self._key(agent, i), g.Pose3(guess if guess is not None else T_fleet_map @ own[i]))
+        first = self._key(agent, chain[0])
+        if agent == reference:
+            graph.add(g.PriorFactorPose3(first, g.Pose3(own[chain[0]]), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
+        else:
+            graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
+        index = {i: k for k, i in enumerate(ids)}
+        for (i, j), relative in zip(itertools.pairwise(chain), _steps([own[i] for i in chain]), strict=True):
+            steps = index[j] - index[i]
+            if steps not in self._odometry_noise:  # the steps' errors add up: sigma grows with their square root
+                sigmas = _sigmas(self.odometry_sigma) * np.sqrt(steps)
+                self._odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(sigmas)
+            graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j), g.Pose3(relative),
+                                           self._odometry_noise[steps]))  # fmt: skip
+        return chain
 
     @property
     def solution(self) -> dict[str, AgentPlacement]:
@@ -403,6 +499,15 @@ class FleetGraph:
 
     def _key(self, agent: str, keyframe_id: int) -> int:
         return (self.agents[agent].slot << _SLOT_BITS) | int(keyframe_id)
+
+
+def _endpoints(closures: Iterable[FleetClosure]) -> dict[str, set[int]]:
+    """Per agent, its keyframes that ``closures`` join to another agent's."""
+    found: dict[str, set[int]] = {}
+    for c in closures:
+        found.setdefault(c.a, set()).add(c.a_id)
+        found.setdefault(c.b, set()).add(c.b_id)
+    return found
 
 
 def _fill_between(own: dict[int, Pose], chain: list[int], solved: dict[int, Pose]) -> dict[int, Pose]:

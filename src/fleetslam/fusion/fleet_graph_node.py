@@ -72,6 +72,11 @@ class FleetGraphConfig(ConfigModel):
     those between follow their neighbours' corrections. 1: every keyframe (the solve grows 5 times)."""
     recent_keyframes: int = Field(default=10, ge=1)
     """An agent's newest keyframes that are all variables."""
+    gnc_budget: int = Field(default=200, ge=1)
+    """Most variables of one solve's GNC. New closures are judged a group of agents at a time (those waiting longest
+    first, as many agents as this many of their keyframe variables hold; the agents they share closures with are held
+    where they are), the rest in the next solves, so that no solve keeps every agent's new keyframes waiting long
+    (a GNC over all 32 agents of ``benchmarks/fleet_backend.py`` took 0.7 s). At least one closure's two agents."""
     min_closures: int = Field(default=3, ge=1)
     """Mutually consistent closures between two agents before they are connected (placed relative to each
     other): the pairwise test the agents use themselves."""
@@ -100,7 +105,7 @@ class FleetGraphNode:
             reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
             inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
             recent_keyframes=c.recent_keyframes, tolerance=ConsistencyTolerance(), min_closures=c.min_closures,
-            min_places=c.min_places, dominance=c.dominance,
+            min_places=c.min_places, dominance=c.dominance, gnc_budget=c.gnc_budget,
         )  # fmt: skip
         self.solution: FleetSolution | None = None
         """The last solve's outcome."""
@@ -268,6 +273,7 @@ class FleetGraphNode:
         values = {
             "agents_known": len(self.graph.agents), "agents_placed": len(solution.placements),
             "closures_kept": len(solution.kept), "closures_rejected": len(solution.rejected),
+            "closures_pending": len(solution.pending),
             "variables": solution.keyframes, "robust": solution.robust, "solve_ms": round(solution.seconds * 1e3, 1),
             "solve_cpu_ms": round(solution.cpu_seconds * 1e3, 1),
             "solves": self.solves, **self.counts,
