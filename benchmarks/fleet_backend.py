@@ -26,8 +26,9 @@ Figures: lag from a keyframe's update being published to the keyframe appearing 
 ``fleet_path`` (median, p95, max; target < 1 s; counted for keyframes published once their agent was placed:
 before, they wait for closures, not for the back-end), keyframes per second in, the back-end process's CPU (% of
 one core) and peak RSS, its solve time per cycle (from ``/fleet/backend/diagnostics``: wall and CPU time,
-median, p95, max; how many ran GNC), agents placed, closures kept and rejected. The machine is shared (2 cores,
-other work running), as the JSON says (``load_average``): wall times include waiting for a core, CPU times do not.
+median, p95, max; how many ran GNC), agents placed, closures kept, rejected and pending (waiting for GNC's verdict).
+The machine is shared (2 cores, other work running), as the JSON says (``load_average``): wall times include
+waiting for a core, CPU times do not.
 The replayer and the lag measurement run in this process, niced like the back-end. Prints one JSON line;
 progress on stderr; ``fleet_backend.png``: lag and solve time over the run.
 
