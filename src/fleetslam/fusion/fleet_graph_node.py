@@ -91,6 +91,40 @@ class FleetGraphConfig(ConfigModel):
     """How long (s) a request for an agent's whole graph may take."""
 
 
+def fleet_graph(config: FleetGraphConfig) -> FleetGraph:
+    """The :class:`FleetGraph` the node solves with ``config``."""
+    c = config
+    # With the agents listed, the reference is known from the start (the first of them, as their SLAM chooses it):
+    # an agent heard before the reference must not become the fleet frame for a moment (a map landed there would
+    # jump metres once the reference is heard).
+    reference = c.reference or (min(c.agents) if c.agents else "")
+    return FleetGraph(
+        reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
+        inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride, recent_keyframes=c.recent_keyframes,
+        tolerance=ConsistencyTolerance(), min_closures=c.min_closures, min_places=c.min_places, dominance=c.dominance,
+        gnc_budget=c.gnc_budget,
+    )  # fmt: skip
+
+
+def closure_update(agent: str, msg: Any) -> GraphUpdate[ClosureReport]:
+    """``agent``'s ``fleetslam_msgs/KeyframeGraph`` as the fleet graph takes it: its inter-agent closures as
+    :class:`ClosureReport` (other constraints are not needed: the agent's own poses hold them). Raises
+    :class:`MessageError` (or ``ValueError``, ``TypeError``) when it is malformed."""
+    if str(msg.agent) != agent:
+        raise MessageError(f"it names agent {str(msg.agent)!r}")
+    update = graph_update_of(msg)
+    closures = []
+    for c in update.constraints:
+        if int(c.kind) != INTER_AGENT or str(c.from_agent) != agent:
+            continue
+        relative = pose_matrix(c.relative)
+        if not np.isfinite(relative).all():
+            raise MessageError("an inter-agent closure is not finite")
+        closures.append(ClosureReport(agent, int(c.from_id), str(c.to_agent), int(c.to_id), relative,
+                                      int(c.to_epoch)))  # fmt: skip
+    return GraphUpdate(update.sequence, update.full, update.poses, update.stamps, closures, update.epoch)
+
+
 class FleetGraphNode:
     """Adapter between the middleware and a :class:`FleetGraph` (see the module docstring)."""
 
@@ -98,16 +132,7 @@ class FleetGraphNode:
         self.node = node
         self.config = config or FleetGraphConfig()
         c = self.config
-        # With the agents listed, the reference is known from the start (the first of them, as their SLAM chooses
-        # it): an agent heard before the reference must not become the fleet frame for a moment (a map landed there
-        # would jump metres once the reference is heard).
-        reference = c.reference or (min(c.agents) if c.agents else "")
-        self.graph = FleetGraph(
-            reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
-            inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
-            recent_keyframes=c.recent_keyframes, tolerance=ConsistencyTolerance(), min_closures=c.min_closures,
-            min_places=c.min_places, dominance=c.dominance, gnc_budget=c.gnc_budget,
-        )  # fmt: skip
+        self.graph = fleet_graph(c)
         self.solution: FleetSolution | None = None
         """The last solve's outcome."""
         self.solves = 0
@@ -172,28 +197,15 @@ class FleetGraphNode:
             self._wake.set()
 
     def _convert(self, agent: str, msg: Any) -> GraphUpdate[ClosureReport] | None:
-        """The update with its inter-agent closures as :class:`ClosureReport` (other constraints are not needed:
-        the agent's own poses hold them); None when malformed (counted, logged)."""
+        """The update as :func:`closure_update` makes it; None when malformed (counted, logged)."""
         try:
-            if str(msg.agent) != agent:
-                raise MessageError(f"it names agent {str(msg.agent)!r}")
-            update = graph_update_of(msg)
-            closures = []
-            for c in update.constraints:
-                if int(c.kind) != INTER_AGENT or str(c.from_agent) != agent:
-                    continue
-                relative = pose_matrix(c.relative)
-                if not np.isfinite(relative).all():
-                    raise MessageError("an inter-agent closure is not finite")
-                closures.append(ClosureReport(agent, int(c.from_id), str(c.to_agent), int(c.to_id), relative,
-                                              int(c.to_epoch)))  # fmt: skip
+            return closure_update(agent, msg)
         except (MessageError, ValueError, TypeError) as err:
             self.counts["bad_messages"] += 1
             n = self.counts["bad_messages"]
             if n in (1, 10, 100) or n % 1000 == 0:
                 log.warning("fleet back-end: graph update from %s ignored (%d so far): %s", agent, n, err)
             return None
-        return GraphUpdate(update.sequence, update.full, update.poses, update.stamps, closures, update.epoch)
 
     def _request_graph(self, agent: str) -> None:
         """Ask ``agent`` for its whole graph, off the worker (one request per agent at a time)."""
