@@ -441,6 +441,10 @@ def run_offline(args: argparse.Namespace) -> dict[str, Any]:
     lags: list[tuple[float, float]] = []
     solves: list[dict[str, str]] = []
     last: FleetSolution | None = None
+    all_placed: float | None = None
+    pending_since: dict[Any, float] = {}
+    verdicts: dict[Any, float] = {}
+    """Closure -> how long it waited for GNC's verdict (those that waited for a later solve)."""
     started = time.perf_counter()
     while k < len(updates) or graph.changed:
         while k < len(updates) and updates[k][0] <= now:
@@ -456,6 +460,13 @@ def run_offline(args: argparse.Namespace) -> dict[str, Any]:
         assert solution is not None
         last, done = solution, now + solution.cpu_seconds
         placed = set(solution.placements)
+        if len(placed) == len(names) and all_placed is None:
+            all_placed = done
+        for c in solution.pending:
+            pending_since.setdefault(c.key, now)
+        for c in solution.kept + solution.rejected:
+            if c.key in pending_since and c.key not in verdicts:
+                verdicts[c.key] = done - pending_since[c.key]
         for name, placement in solution.placements.items():
             for stamp in placement.stamps.values():
                 at_ = waiting.pop((name, round(stamp * 1e3)), None)
@@ -486,6 +497,10 @@ def run_offline(args: argparse.Namespace) -> dict[str, Any]:
         "closures_kept": 0 if last is None else len(last.kept),
         "closures_rejected": 0 if last is None else len(last.rejected),
         "closures_pending": 0 if last is None else len(last.pending),
+        "closures_waited": len(verdicts),
+        "verdict_wait_s_p95": round(float(np.percentile(list(verdicts.values()), 95)), 2) if verdicts else 0.0,
+        "verdict_wait_s_max": round(max(verdicts.values()), 2) if verdicts else 0.0,
+        "all_agents_placed_at_s": None if all_placed is None else round(all_placed, 1),
         "wall_s": round(time.perf_counter() - started, 1),
         "load_average": [round(v, 2) for v in os.getloadavg()], "cores": os.cpu_count(),
     }  # fmt: skip
