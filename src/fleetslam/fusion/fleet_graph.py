@@ -427,7 +427,8 @@ class FleetGraph:
         g = _gtsam()
         graph, values = g.NonlinearFactorGraph(), g.Values()
         endpoints = _endpoints(closures)
-        chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference)
+        chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference,
+                                         as_placed=True)
                   for agent in group}  # fmt: skip
         held = g.noiseModel.Isotropic.Sigma(6, 1e-4)
         for c in closures:
@@ -460,9 +461,11 @@ class FleetGraph:
         return fits, sum(len(chain) for chain in chains.values())
 
     def _add_chain(self, graph: Any, values: Any, agent: str, endpoints: set[int], T_fleet_map: Pose,
-                   reference: str) -> list[int]:  # fmt: skip
+                   reference: str, *, as_placed: bool = False) -> list[int]:  # fmt: skip
         """``agent``'s keyframe chain into ``graph``: its variables (warm-started from the last solution, new ones
-        where ``T_fleet_map`` puts them), the odometry between them, the prior on its first one. Returns the chain."""
+        where ``T_fleet_map`` puts them), the odometry between them, the prior on its first one (the reference's: its
+        own pose, or with ``as_placed`` where the last solution put it, the frame the agents held there are in).
+        Returns the chain."""
         g = _gtsam()
         own = self.agents[agent].mirror.poses
         ids = sorted(own)
@@ -473,7 +476,10 @@ class FleetGraph:
             values.insert(self._key(agent, i), g.Pose3(guess if guess is not None else T_fleet_map @ own[i]))
         first = self._key(agent, chain[0])
         if agent == reference:
-            graph.add(g.PriorFactorPose3(first, g.Pose3(own[chain[0]]), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
+            anchor = own[chain[0]]
+            if as_placed and previous is not None and chain[0] in previous.poses:
+                anchor = previous.poses[chain[0]]
+            graph.add(g.PriorFactorPose3(first, g.Pose3(anchor), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
         else:
             graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
         index = {i: k for k, i in enumerate(ids)}
