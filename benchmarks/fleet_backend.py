@@ -536,7 +536,7 @@ def plot(lags: list[tuple[float, float]], solves: list[dict[str, str]], path: Pa
         bottom.plot(t, [float(s["solve_cpu_ms"]) for s in solves], ".", ms=3, color="tab:green", label="solve (CPU)")
         gnc = [(float(s["t"]), float(s["solve_ms"])) for s in solves if s.get("robust") == "True"]
         if gnc:
-            bottom.plot(*zip(*gnc, strict=True), "x", color="tab:red", ms=4, label="with GNC (closures changed)")
+            bottom.plot(*zip(*gnc, strict=True), "x", color="tab:red", ms=4, label="with GNC (closures judged)")
         bottom.legend(loc="upper left")
     bottom.set_ylabel("solve time (ms)")
     bottom.set_xlabel("time since the replay started (s)")
