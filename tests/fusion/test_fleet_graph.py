@@ -221,3 +221,15 @@ def test_many_agents_admitted_at_once_are_judged_a_few_per_solve_within_the_budg
     for name in names:
         np.testing.assert_allclose(final.placements[name].T_fleet_map, frames[name], atol=1e-3)
         np.testing.assert_allclose(unbounded.placements[name].T_fleet_map, frames[name], atol=1e-3)
+    # One more closure of one agent: judged with as much of the fleet free as the budget holds (all of it, when it
+    # fits; else the reference, the agent and one neighbour), the others held.
+    truth = truths[names[0]]
+    closure = ClosureReport(names[0], 10, "c3po", 10, invert(truth[10]) @ c3po[10], 11)
+    late = GraphUpdate(2, False, {}, {}, [closure], 22)
+    for graph, most in ((fleet, budget), (fleet_with(10_000), 10_000)):
+        if graph is not fleet:
+            assert graph.solve() is not None
+        graph.apply(names[0], late)
+        solution = graph.solve()
+        assert solution is not None and solution.robust and len(solution.kept) == 8 * len(ENDS) + 1
+        assert solution.gnc_variables == (61 if most == budget else unbounded.gnc_variables)  # keyframe 10 was one

@@ -393,7 +393,8 @@ class FleetGraph:
     def _group(self, waiting: list[FleetClosure], placed: set[str], between: list[FleetClosure]) -> set[str]:
         """The agents whose closures this solve judges: those of the closures waiting longest (``waiting`` is in that
         order), as many as ``gnc_budget`` variables hold (at least one closure's); a closure is taken only when one of
-        its agents is placed or taken already (the others are held where they are placed)."""
+        its agents is placed or taken already (the others are held where they are placed). Then, within the budget,
+        the placed agents joined to them by closures, breadth first."""
         endpoints = _endpoints(between)
         size = {a: len(self._chain(sorted(self.agents[a].mirror.poses), endpoints.get(a, set())))
                 for a in endpoints}  # fmt: skip
@@ -411,6 +412,19 @@ class FleetGraph:
                 group |= new
                 variables += cost
                 grew = True
+        # Room left: the placed agents that share closures with the group are solved too, not held (nearest first),
+        # so that their closures are judged with more of the graph free; a fleet that fits is judged as one.
+        frontier = sorted(group)
+        while frontier and group:
+            agent = frontier.pop(0)
+            for c in between:
+                other = c.b if c.a == agent else c.a if c.b == agent else None
+                if other is None or other in group or other not in placed:
+                    continue
+                if variables + size[other] <= self.gnc_budget:
+                    group.add(other)
+                    variables += size[other]
+                    frontier.append(other)
         return group
 
     def _judgeable(self, closure: FleetClosure, group: set[str]) -> bool:
