@@ -24,14 +24,15 @@ Incremental and budgeted: :meth:`FleetGraph.solve` does nothing when no graph ch
 closure waits for a verdict. A closure between connected agents is used only once GNC judged it. GNC runs on a group
 of agents, not on the whole fleet: those whose closures have waited longest, as many as ``gnc_budget`` keyframe
 variables hold (at least one closure's two agents; a closure is taken once one of its agents is placed or taken),
-with every closure touching them judged (again, for the old ones) and the other agents' keyframes they join held
-where the last solve placed them; a closure waiting beyond the budget is judged in a later solve (``pending``), and
-an agent whose first closures wait is placed once they are judged. Then plain Levenberg–Marquardt over every placed
-agent with the closures GNC kept, warm-started from the previous solution (new keyframes start where their agent's
-previous placement puts them), which converges in one or two iterations. So one solve's work is bounded however
-many agents change at once (in ``benchmarks/fleet_backend.py`` every agent's closures arrive together, and one GNC
-over all 32 agents, 1700 variables, took 0.7 s, every agent's new keyframes waiting meanwhile). The caller bounds
-the rate.
+then, while the budget holds, the placed agents joined to them by closures (breadth first: a fleet that fits is
+judged as one), with every closure touching them judged (again, for the old ones) and the other agents' keyframes
+they join held where the last solve placed them; a closure waiting beyond the budget is judged in a later solve
+(``pending``), and an agent whose first closures wait is placed once they are judged. Then plain
+Levenberg–Marquardt over every placed agent with the closures GNC kept, warm-started from the previous solution (new
+keyframes start where their agent's previous placement puts them), which converges in one or two iterations. So
+one solve's work is bounded however many agents change at once (in ``benchmarks/fleet_backend.py`` every agent's
+closures arrive together, and one GNC over all 32 agents, 1700 variables, took 0.7 s, every agent's new keyframes
+waiting meanwhile). The caller bounds the rate.
 
 Why a batch solve and not iSAM2: the agents re-optimise their own graphs (a loop closure moves every keyframe of
 that agent), which changes every intra-agent factor of that agent; iSAM2 would have to remove and re-add them all,
@@ -175,7 +176,8 @@ class FleetGraph:
     gnc_budget: int = 200
     """Most variables of one solve's GNC: closures waiting for a verdict are judged a group of agents at a time
     (those waiting longest first, as many agents as this many of their keyframe variables hold, at least the two of
-    one closure), the rest in the next solves; see the module docstring."""
+    one closure; then their placed neighbours while it holds), the rest in the next solves; see the module
+    docstring."""
     coarse_stride: int = 5
     """Of an agent's older keyframes, every ``coarse_stride``-th is a variable (and every closure's keyframe); the
     ones between follow their corrections. 1: every keyframe is a variable."""

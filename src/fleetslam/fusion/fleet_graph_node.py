@@ -75,9 +75,10 @@ class FleetGraphConfig(ConfigModel):
     """An agent's newest keyframes that are all variables."""
     gnc_budget: int = Field(default=200, ge=1)
     """Most variables of one solve's GNC. New closures are judged a group of agents at a time (those waiting longest
-    first, as many agents as this many of their keyframe variables hold; the agents they share closures with are held
-    where they are), the rest in the next solves, so that no solve keeps every agent's new keyframes waiting long
-    (a GNC over all 32 agents of ``benchmarks/fleet_backend.py`` took 0.7 s). At least one closure's two agents."""
+    first, as many agents as this many of their keyframe variables hold, then their neighbours while it holds; the
+    other agents they share closures with are held where they are), the rest in the next solves, so that no solve
+    keeps every agent's new keyframes waiting long (a GNC over all 32 agents of ``benchmarks/fleet_backend.py`` took
+    0.7 s). At least one closure's two agents. A fleet whose graph fits is judged by one GNC over all of it."""
     min_closures: int = Field(default=3, ge=1)
     """Mutually consistent closures between two agents before they are connected (placed relative to each
     other): the pairwise test the agents use themselves."""
