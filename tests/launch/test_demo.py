@@ -65,13 +65,20 @@ def test_headless_simulated_demo_produces_every_result(tmp_path: Path) -> None:
         tree = OccupancyOctree.read(run / "maps" / f"{name}.bt")
         assert tree.num_nodes() > 1000, name
     for robot in ("c3po", "r2d2"):
-        assert len(read_tum(run / "trajectories" / f"{robot}.txt")) > 20
-        assert len(read_tum(run / "ground_truth" / f"{robot}.txt")) > 20
+        final = read_tum(run / "trajectories" / f"{robot}.txt")
+        live = read_tum(run / "trajectories_live" / f"{robot}.txt")
+        assert len(final) > 20 and len(read_tum(run / "ground_truth" / f"{robot}.txt")) > 20
+        # SLAM's own trajectory as the run ended: the frames it tracked (each published live), re-anchored.
+        common = set(final.stamps.tolist()) & set(live.stamps.tolist())
+        assert len(common) >= 0.9 * max(len(final), len(live)), (len(common), len(final), len(live))
+        assert f"[demo] {robot}: final trajectory" in out.getvalue()
         assert 0.0 <= result.ate[robot] < 1.0  # smoke bound (7 and 17 mm measured); accuracy is tests/integration's
+        assert 0.0 <= result.ate_live[robot] < 1.0
     assert (run / "recording" / "metadata.yaml").is_file()
     assert (run / "trajectories.png").stat().st_size > 1000 and (run / "bandwidth.png").stat().st_size > 1000
     report = (run / "report.md").read_text()
-    assert "ATE RMSE" in report and "/c3po/camera/rgb/image_raw" in report
+    assert "ATE RMSE (m), final" in report and "ATE RMSE (m), live" in report
+    assert "/c3po/camera/rgb/image_raw" in report
     assert "<table>" in (run / "report.html").read_text()
     links = {(r["topic"], r["node_sub"]) for r in json.loads((run / "statistics.json").read_text())}
     # Each agent receives the other's keyframe summaries and graph updates (collaborative SLAM), not its images.
