@@ -103,24 +103,26 @@ def machine_cpu() -> tuple[float, float]:
 
 def wheel_ate(out: Path, robot: str) -> float | None:
     """ATE (m) of the robot's own wheel odometry (``odom`` in the demo's recording; base_link poses, compared as
-    such with the base ground truth) over the same run: what the robot knows without SLAM."""
+    such with the simulator's base_link ground truth, ``ground_truth/base_link/``) over the same run: what the robot
+    knows without SLAM."""
     from fleetslam.datasets.recorded_poses import odometry_trajectory
     from fleetslam.eval import ape
+    from fleetslam.launch.demo import GROUND_TRUTH_BASE_DIR
     from fleetslam.middleware.recording import read_bag
     from fleetslam.msg.typesys import deserialize
+    from fleetslam.trajectory import read_tum
 
-    topics = {f"/{robot}/odom": "wheels", f"/{robot}/ground_truth/odom": "truth"}
-    messages: dict[str, list[Any]] = {"wheels": [], "truth": []}
+    wheels: list[Any] = []
     try:
-        for message in read_bag(out / "recording", set(topics)):
-            messages[topics[message.topic]].append(deserialize(message.data, message.type_name))
-    except Exception:
+        for message in read_bag(out / "recording", {f"/{robot}/odom"}):
+            wheels.append(deserialize(message.data, message.type_name))
+        truth = read_tum(out / GROUND_TRUTH_BASE_DIR / f"{robot}.txt")
+    except Exception as err:
+        print(f"no wheel-odometry peer for {robot}: {err}", file=sys.stderr)
         return None
-    if len(messages["wheels"]) < 3 or len(messages["truth"]) < 3:
+    if len(wheels) < 3 or len(truth) < 3:
         return None
-    _, _, wheels = odometry_trajectory(messages["wheels"])
-    _, _, truth = odometry_trajectory(messages["truth"])
-    return float(ape(truth, wheels, align=True, max_diff=0.05).rmse)
+    return float(ape(truth, odometry_trajectory(wheels)[2], align=True, max_diff=0.05).rmse)
 
 
 def main(argv: list[str] | None = None) -> int:
