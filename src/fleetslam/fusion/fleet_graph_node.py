@@ -59,9 +59,10 @@ class FleetGraphConfig(ConfigModel):
     max_load: float = Field(default=0.6, gt=0.0, le=1.0)
     """Largest share of one core the solves may take: a solve that took t s is followed by the next one no sooner
     than t / max_load s after it started."""
-    odometry_sigma: tuple[float, float] = (0.05, 0.02)
+    odometry_sigma: tuple[float, float] = (0.01, 0.005)
     """Standard deviation (m, rad) of the relative pose of two consecutive keyframes of one agent (its own
-    optimised poses; known inliers)."""
+    optimised poses; known inliers). Tight: an agent's own chain is far more precise over a keyframe than an
+    inter-agent closure, which must not bend it."""
     closure_sigma: tuple[float, float] = (0.05, 0.02)
     """Standard deviation (m, rad) of an inter-agent closure (the agents' verification noise)."""
     inlier_probability: float = Field(default=0.99, gt=0.0, lt=1.0)
