@@ -1,0 +1,169 @@
+"""The mapping node following the fleet back-end's corrected keyframes, over a real router and real map files.
+
+An agent drives along a wall twice; on the way back its own graph has drifted 0.3 m away from the wall while its
+depth images are rendered from the true poses, so its own map holds the wall twice. The fleet back-end's
+``fleet_path`` (the true poses, in the fleet frame) and ``/fleet/placements`` arrive: the agent following them
+integrates its keyframes again and the wall ends single, where it is; an agent not following them keeps the doubled
+wall.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from fleetslam import topics
+from fleetslam.geometry import T_BODY_OPTICAL, invert, pose_from_planar, pose_to_quat, transform_points
+from fleetslam.mapping.node import MappingNode, MappingNodeConfig
+from fleetslam.mapping.octree import OccupancyOctree
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.msg.conversions import pose_msgs, transform_msg
+from fleetslam.msg.typesys import get_type, header, message_from_dict, stamp_from_ns
+
+from ..support import wait_until
+
+WALL_Y = 2.0
+"""The wall: the plane y = 2 m of the fleet frame (the world)."""
+T_FLEET_MAP = pose_from_planar(1.0, -0.5, 0.3)
+"""Where the agents' map frames lie in the fleet frame (the placement the back-end publishes)."""
+DRIFT = pose_from_planar(0.0, -0.3, 0.0)
+"""The error of the agents' own graph on the way back: 0.3 m away from the wall."""
+
+
+def _camera(x: float) -> np.ndarray:
+    """True camera pose in the fleet frame at ``x`` along the wall, 2 m from it, looking at it."""
+    camera = T_BODY_OPTICAL.copy()
+    camera[2, 3] = 0.5
+    return pose_from_planar(x, 0.0, math.pi / 2) @ camera
+
+
+def _route() -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], dict[int, int]]:
+    """Keyframe id -> true pose (fleet frame), own pose (the agent's map frame), stamp (ns)."""
+    forth = [_camera(x) for x in np.arange(0.0, 3.01, 0.5)]  # ids 0-6: the own graph is right
+    back = [_camera(x) for x in np.arange(3.0, -0.51, -0.25)]  # ids 7-21: drifted
+    true = dict(enumerate(forth + back))
+    own = {i: invert(T_FLEET_MAP) @ (pose if i < len(forth) else DRIFT @ pose) for i, pose in true.items()}
+    stamps = {i: round((1_764_000_000.123456789 + 0.5 * i) * 1e9) for i in true}
+    return true, own, stamps
+
+
+def _pose_dict(pose: np.ndarray) -> dict[str, Any]:
+    t, q = pose_to_quat(pose)
+    return {"position": dict(zip("xyz", t.tolist(), strict=True)),
+            "orientation": dict(zip("xyzw", q.tolist(), strict=True))}  # fmt: skip
+
+
+def _keyframe(agent: str, keyframe_id: int, own_pose: np.ndarray, stamp_ns: int) -> Any:
+    """A keyframe as SLAM publishes it: the depth seen from the true pose (the wall 2 m ahead, fronto-parallel),
+    the pose SLAM believes."""
+    ok, png = cv2.imencode(".png", np.full((48, 64), int(WALL_Y * 1000), np.uint16))
+    assert ok
+    msg = message_from_dict(
+        "fleetslam_msgs/msg/Keyframe",
+        {"header": {"stamp": {"sec": stamp_ns // 10**9, "nanosec": stamp_ns % 10**9}, "frame_id": "map"},
+         "agent": agent, "id": keyframe_id, "depth_format": "png16_mm", "depth": png.reshape(-1).tolist(),
+         "camera_info": {"width": 64, "height": 48, "k": [50.0, 0, 32.0, 0, 50.0, 24.0, 0, 0, 1]},
+         "pose": _pose_dict(own_pose)},
+    )  # fmt: skip
+    return msg
+
+
+def _graph(agent: str, poses: dict[int, np.ndarray], stamps: dict[int, int], sequence: int) -> Any:
+    """A graph update (delta) as SLAM publishes it on ``graph_updates``."""
+    ids = sorted(poses)
+    return message_from_dict(
+        "fleetslam_msgs/msg/KeyframeGraph",
+        {"agent": agent, "keyframe_ids": ids, "poses": [_pose_dict(poses[i]) for i in ids], "sequence": sequence,
+         "epoch": 11, "stamps": [{"sec": stamps[i] // 10**9, "nanosec": stamps[i] % 10**9} for i in ids]},
+    )  # fmt: skip
+
+
+def _fleet_path(poses: dict[int, np.ndarray], stamps: dict[int, int]) -> Any:
+    """``<agent>/fleet_path`` as the back-end builds it: poses in the fleet frame, each stamped with its keyframe's
+    stamp as the back-end holds it (seconds from the graph message, back to nanoseconds)."""
+    pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
+    ids = sorted(poses)
+    stamped = [pose_stamped(header=header("fleet", round(stamps[i] / 1e9 * 1e9)), pose=pose)
+               for i, pose in zip(ids, pose_msgs([poses[i] for i in ids]), strict=True)]  # fmt: skip
+    return get_type("nav_msgs/msg/Path")(header=header("fleet", 1), poses=stamped)
+
+
+def _wall_offsets(path: Path) -> np.ndarray:
+    """Distance (m, signed) of each occupied voxel centre of a saved map from the wall, in the fleet frame."""
+    centres, _ = OccupancyOctree.read(path).occupied_centers()
+    return np.asarray(transform_points(T_FLEET_MAP, centres)[:, 1] - WALL_Y)
+
+
+def test_a_bent_map_is_straightened_by_the_backend_corrections_and_stays_doubled_without_them(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    true, own, stamps = _route()
+    agents = {"c3po": True, "r2d2": False}  # follows the fleet, or not
+    mappers, slams, saves = {}, {}, {}
+    tester = Node("tester", context=make_context())
+    for agent, follow in agents.items():
+        config = MappingNodeConfig(publish_rate=5.0, reintegrate_period=0.5, pixel_stride=2, follow_fleet=follow,
+                                   maps_dir=str(tmp_path / agent))  # fmt: skip
+        mappers[agent] = MappingNode(Node("mapping", context=make_context(agent)), config)
+        slam = Node("slam", context=make_context(agent))
+        slams[agent] = (
+            slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50)),
+            slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph_updates", QoSProfile(depth=50)),
+        )
+        saves[agent] = tester.create_client("fleetslam_msgs/srv/SaveMap", f"/{agent}/map/save")
+    backend = Node("fleet_backend", context=make_context())
+    placements = backend.create_publisher(topics.FLEET_PLACEMENTS.type, topics.FLEET_PLACEMENTS.name,
+                                          topics.FLEET_PLACEMENTS.qos())  # fmt: skip
+    paths = {agent: backend.create_publisher(topics.FLEET_PATH.type, topics.FLEET_PATH.of(agent),
+                                             topics.FLEET_PATH.qos()) for agent in agents}  # fmt: skip
+    assert wait_until(lambda: all(k.matched_subscriptions and g.matched_subscriptions for k, g in slams.values()),
+                      10.0)  # fmt: skip
+    assert all(save.wait_for_service(5.0) for save in saves.values())
+
+    def send(ids: range, sequence: int) -> None:
+        for agent, (keyframes, graph) in slams.items():
+            for i in ids:
+                keyframes.publish(_keyframe(agent, i, own[i], stamps[i]))
+            graph.publish(_graph(agent, {i: own[i] for i in ids}, stamps, sequence))
+
+    def integrated(count: int) -> bool:
+        return all(len(m.mapper.scans) == count and m.graph.sequence >= 1 and not m.mapper.pending
+                   for m in mappers.values())  # fmt: skip
+
+    def saved(agent: str, name: str) -> np.ndarray:
+        request = get_type("fleetslam_msgs/srv/SaveMap_Request")(path=name)
+        response = saves[agent].call(request, timeout=60)
+        assert response.success, response.message
+        return _wall_offsets(Path(response.path))
+
+    send(range(0, 18), 1)
+    assert wait_until(lambda: integrated(18), 60.0), [(len(m.mapper.scans), m.graph.sequence, m.mapper.pending, m.rejected) for m in mappers.values()]
+    for agent in agents:  # the agents' own maps: the wall, and the wall again 0.3 m nearer on the way back
+        offsets = saved(agent, "own.bt")
+        assert (np.abs(offsets - 0.025) <= 0.1).sum() > 100, agent
+        assert (np.abs(offsets + 0.3 - 0.025) <= 0.05).sum() > 100, agent
+
+    # The back-end's word: the placements, and the true poses of the keyframes it knows (0-14; 15-17 are newer).
+    placements.publish(get_type("tf2_msgs/msg/TFMessage")(
+        transforms=[transform_msg(T_FLEET_MAP, "fleet", f"{agent}/map", 1).transforms[0] for agent in agents]))  # fmt: skip
+    for agent, path in paths.items():
+        path.publish(_fleet_path({i: true[i] for i in range(15)}, stamps))
+    follower = mappers["c3po"]
+    assert wait_until(lambda: follower.fleet.active and not follower.mapper.pending and follower.mapper.moved == 0
+                      and follower.mapper.reintegrated + follower.mapper.rebuilds > 0, 20.0)  # fmt: skip
+    send(range(18, 22), 2)  # newer keyframes than the path: they follow the own graph from the corrected ones
+    assert wait_until(lambda: integrated(22), 20.0)
+
+    offsets = saved("c3po", "fleet.bt")
+    assert len(offsets) > 100
+    assert np.abs(offsets - 0.025).max() <= 0.1, np.sort(offsets)[:10]  # single: within two voxels of the wall
+    for i in range(22):  # every keyframe where it truly was, landed by the placement
+        np.testing.assert_allclose(T_FLEET_MAP @ follower.mapper.scans[i].pose, true[i], atol=1e-6)
+    offsets = saved("r2d2", "fleet.bt")  # not following: its map keeps the wall twice
+    assert (np.abs(offsets + 0.3 - 0.025) <= 0.05).sum() > 100
+    assert not mappers["r2d2"].fleet.active
