@@ -69,3 +69,18 @@ def test_without_corrections_every_keyframe_keeps_its_own_pose() -> None:
         follower.set_path(np.array([stamp_key(stamps[0])]), true_fleet[0][None], "world")
     follower.set_placement(T_fleet_map, "world")  # another fleet frame: the path in the old one is dropped
     assert not follower.active
+
+
+def test_a_placement_that_moved_less_than_the_tolerance_is_not_taken() -> None:
+    """As the fleet map keeps landing the map by the placement it took, the keyframes keep theirs."""
+    follower = FleetCorrection(placement_tolerance=0.05)
+    T_fleet_map = pose_from_xyz_rpy(3.0, -1.0, 0.0, 0.0, 0.0, 0.8)
+    assert follower.set_placement(T_fleet_map, "fleet")
+    wobble = T_fleet_map @ pose_from_xyz_rpy(0.01, -0.02, 0.0, 0.0, 0.0, 0.002)  # 2.2 cm, 0.11°
+    assert not follower.set_placement(wobble, "fleet")
+    np.testing.assert_array_equal(follower.T_fleet_map, T_fleet_map)
+    turned = T_fleet_map @ pose_from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, 0.006)  # 0.34°: beyond a tenth of 0.05 rad
+    assert follower.set_placement(turned, "fleet")
+    moved = turned @ pose_from_xyz_rpy(0.06, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert follower.set_placement(moved, "fleet")
+    np.testing.assert_array_equal(follower.T_fleet_map, moved)

@@ -23,7 +23,7 @@ from fleetslam.mapping.node import MappingNode, MappingNodeConfig
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.msg.conversions import pose_msgs, transform_msg
-from fleetslam.msg.typesys import get_type, header, message_from_dict, stamp_from_ns
+from fleetslam.msg.typesys import get_type, header, message_from_dict
 
 from ..support import wait_until
 
@@ -141,23 +141,23 @@ def test_a_bent_map_is_straightened_by_the_backend_corrections_and_stays_doubled
         assert response.success, response.message
         return _wall_offsets(Path(response.path))
 
-    send(range(0, 18), 1)
-    assert wait_until(lambda: integrated(18), 60.0), [(len(m.mapper.scans), m.graph.sequence, m.mapper.pending, m.rejected) for m in mappers.values()]
+    send(range(18), 1)
+    assert wait_until(lambda: integrated(18), 60.0)  # (the first run compiles the octree's kernels)
     for agent in agents:  # the agents' own maps: the wall, and the wall again 0.3 m nearer on the way back
         offsets = saved(agent, "own.bt")
         assert (np.abs(offsets - 0.025) <= 0.1).sum() > 100, agent
         assert (np.abs(offsets + 0.3 - 0.025) <= 0.05).sum() > 100, agent
 
     # The back-end's word: the placements, and the true poses of the keyframes it knows (0-14; 15-17 are newer).
-    placements.publish(get_type("tf2_msgs/msg/TFMessage")(
-        transforms=[transform_msg(T_FLEET_MAP, "fleet", f"{agent}/map", 1).transforms[0] for agent in agents]))  # fmt: skip
-    for agent, path in paths.items():
+    placed = [transform_msg(T_FLEET_MAP, "fleet", f"{agent}/map", 1).transforms[0] for agent in agents]
+    placements.publish(get_type("tf2_msgs/msg/TFMessage")(transforms=placed))
+    for path in paths.values():
         path.publish(_fleet_path({i: true[i] for i in range(15)}, stamps))
     follower = mappers["c3po"]
     assert wait_until(lambda: follower.fleet.active and not follower.mapper.pending and follower.mapper.moved == 0
-                      and follower.mapper.reintegrated + follower.mapper.rebuilds > 0, 20.0)  # fmt: skip
+                      and follower.mapper.reintegrated + follower.mapper.rebuilds > 0, 60.0)  # fmt: skip
     send(range(18, 22), 2)  # newer keyframes than the path: they follow the own graph from the corrected ones
-    assert wait_until(lambda: integrated(22), 20.0)
+    assert wait_until(lambda: integrated(22), 60.0)
 
     offsets = saved("c3po", "fleet.bt")
     assert len(offsets) > 100

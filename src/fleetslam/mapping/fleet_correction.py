@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import invert
+from fleetslam.geometry import invert, rotation_angle
 
 Pose = NDArray[np.float64]
 
@@ -91,20 +91,31 @@ class FleetCorrection:
     """The fleet frame the placement is given in (the path must be in it)."""
     corrected: dict[int, Pose] = field(default_factory=dict)
     """Stamp (ns) -> ``T_fleet_kf`` of the keyframes in the latest ``fleet_path``."""
+    placement_tolerance: float = 0.0
+    """A placement that moved less than this (m, and a tenth of it in radians) from the one held is not taken, as
+    the fleet map does (its ``placement_tolerance``): the back-end's fit wobbles by millimetres with every solve, and
+    taking each wobble would move every keyframe of the map, while the fleet map keeps landing it where it did."""
 
     @property
     def active(self) -> bool:
         """Whether there is something to follow: a placement and a path."""
         return self.T_fleet_map is not None and bool(self.corrected)
 
-    def set_placement(self, T_fleet_map: Pose, frame_id: str) -> None:
-        """The agent's placement; a placement in another fleet frame than the path's drops the path."""
+    def set_placement(self, T_fleet_map: Pose, frame_id: str) -> bool:
+        """The agent's placement; whether it was taken (it moved at least ``placement_tolerance``, or is the first,
+        or is in another fleet frame: that drops the path, which is in the old one)."""
         pose = np.asarray(T_fleet_map, dtype=np.float64)
         if pose.shape != (4, 4) or not np.isfinite(pose).all():
             raise ValueError("placement is not a finite 4×4 transform")
         if frame_id != self.frame_id:
             self.corrected = {}
+        elif self.T_fleet_map is not None:
+            moved = invert(self.T_fleet_map) @ pose
+            tolerance = self.placement_tolerance
+            if np.linalg.norm(moved[:3, 3]) < tolerance and rotation_angle(moved) < tolerance / 10:
+                return False
         self.T_fleet_map, self.frame_id = pose, frame_id
+        return True
 
     def set_path(self, stamps_ns: NDArray[np.int64], poses: NDArray[np.float64], frame_id: str) -> None:
         """The agent's corrected keyframes (``T_fleet_kf`` stacked, stamps in ns): they replace the previous ones.

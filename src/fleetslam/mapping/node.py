@@ -81,6 +81,10 @@ class MappingNodeConfig(ConfigModel):
     nothing changes. Off by default: the map then no longer agrees with the agent's own localisation (near the robot
     it is shifted by the back-end's correction there), and subscribing makes the back-end send the agent its whole
     corrected path (~80 B per keyframe) whenever it changes."""
+    fleet_placement_tolerance: float = Field(default=0.05, gt=0)
+    """With ``follow_fleet``: a placement of this agent by the back-end that moved less than this (m, and a tenth of
+    it in radians) from the one followed is not taken (every keyframe would move with it); keep it equal to the
+    fleet map's ``placement_tolerance``, which re-lands the map by the same rule."""
 
 
 def decode_depth(msg: Any) -> np.ndarray | None:
@@ -150,7 +154,7 @@ class MappingNode:
         keyframes, graph = topics.KEYFRAMES, topics.GRAPH_UPDATES
         node.create_subscription(keyframes.type, keyframes.name, self.on_keyframe, keyframes.qos(depth=50))
         node.create_subscription(graph.type, graph.name, self.on_graph_data, graph.qos(depth=50), raw=True)
-        self.fleet = FleetCorrection()
+        self.fleet = FleetCorrection(placement_tolerance=self.config.fleet_placement_tolerance)
         """The fleet back-end's corrections of this agent's keyframes (followed with ``follow_fleet``)."""
         self._fleet_inbox: dict[str, bytes] = {}
         """The newest ``placements`` and ``path`` message received since the last tick (decoded at the tick)."""
@@ -158,7 +162,7 @@ class MappingNode:
         """The graph or the corrections changed since the mapper was last handed the corrected poses."""
         self._chain = np.eye(4)
         """Places a keyframe newer than the graph: ``chain · own pose`` (see :func:`corrected_poses`)."""
-        self._handed: dict[int, NDArray[np.float64]] = {}
+        self._handed: dict[int, NDArray[np.floating]] = {}
         """While following the fleet: the pose each keyframe was last handed to the mapper with."""
         self._handed_epoch = 0
         self._fleet_child = ""
@@ -238,8 +242,9 @@ class MappingNode:
         if kind == "placements":
             for transform in msg.transforms:
                 if str(transform.child_frame_id) == self._fleet_child:
-                    self.fleet.set_placement(transform_matrix(transform.transform), str(transform.header.frame_id))
-                    self._fleet_changed = True
+                    pose = transform_matrix(transform.transform)
+                    if self.fleet.set_placement(pose, str(transform.header.frame_id)):
+                        self._fleet_changed = True
             return  # an agent the back-end no longer places keeps its last placement: nothing waits for it
         poses = msg.poses
         values = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z, p.pose.orientation.x,
@@ -262,7 +267,7 @@ class MappingNode:
             self._handed, self._handed_epoch = {}, self.graph.epoch
         poses, self._chain = self.fleet.poses(self.graph.poses, self.graph.stamps)
         known = [i for i in poses if i in self._handed]
-        changed = {i: pose for i, pose in poses.items() if i not in self._handed}
+        changed: dict[int, NDArray[np.floating]] = {i: pose for i, pose in poses.items() if i not in self._handed}
         if known:
             same = (np.stack([poses[i] for i in known]) == np.stack([self._handed[i] for i in known])).all(axis=(1, 2))
             changed.update({i: poses[i] for i, keep in zip(known, same.tolist(), strict=True) if not keep})
