@@ -9,6 +9,12 @@ coloured by height), ``map/grid`` (OccupancyGrid over a height band) and ``map/o
 binary) — as octomap_server, each only while someone subscribes to it (a subscriber that comes later gets the
 current map at the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset``
 (Trigger). The work is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`, incrementally.
+
+With ``follow_fleet`` it also subscribes its agent's ``fleet_path`` and ``/fleet/placements`` (the fleet back-end's
+corrected keyframes and placement; the newest of each decoded at the next tick) and integrates each keyframe where
+the back-end put it, expressed in the agent's own map frame (:mod:`fleetslam.mapping.fleet_correction`); keyframes
+the back-end does not know yet follow the agent's own graph from the newest corrected one. Keyframes that moved
+are integrated again as after the agent's own optimisation (``reintegrate_period``, half a voxel of tolerance).
 """
 
 from __future__ import annotations
