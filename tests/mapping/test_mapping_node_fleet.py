@@ -167,3 +167,91 @@ def test_a_bent_map_is_straightened_by_the_backend_corrections_and_stays_doubled
     offsets = saved("r2d2", "fleet.bt")  # not following: its map keeps the wall twice
     assert (np.abs(offsets + 0.3 - 0.025) <= 0.05).sum() > 100
     assert not mappers["r2d2"].fleet.active
+
+
+def test_the_real_back_end_straightens_a_drifting_agent_s_map(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    """End to end with the fleet back-end node: c3po (the fleet frame) and r2d2 pass along the wall; r2d2's own graph
+    drifts 14 cm away from the wall over its way there and back, and it recognises c3po's keyframes at the places
+    they share (exact closures). The back-end's solve straightens r2d2's keyframes, its mapping node follows them,
+    and r2d2's map, which held the wall twice, holds it once."""
+    from fleetslam.fusion.fleet_graph_node import FleetGraphConfig, FleetGraphNode
+    from fleetslam.fusion.graph_exchange import GraphDeltaWriter, graph_message
+    from fleetslam.msg.conversions import pose_msg
+
+    places = [*np.arange(0.0, 3.01, 0.5), *np.arange(3.0, -0.01, -0.5)]  # r2d2 there and back: ids 0-13
+    r2d2_true = {i: _camera(x) for i, x in enumerate(places)}
+    c3po_true = {i: _camera(x) for i, x in enumerate(places[:7])}  # c3po there: ids 0-6
+    r2d2_own = {i: invert(T_FLEET_MAP) @ pose_from_planar(0.0, -0.14 * i / 13, 0.0) @ pose
+                for i, pose in r2d2_true.items()}  # fmt: skip
+    stamps = {i: round((1_764_000_100.25 + 0.5 * i) * 1e9) for i in r2d2_true}
+    backend = FleetGraphNode(Node("fleet_backend", context=make_context()),
+                             FleetGraphConfig(agents=["c3po", "r2d2"], rate=10.0))  # fmt: skip
+    config = MappingNodeConfig(publish_rate=5.0, reintegrate_period=0.5, pixel_stride=2, follow_fleet=True,
+                               maps_dir=str(tmp_path))  # fmt: skip
+    follower = MappingNode(Node("mapping", context=make_context("r2d2")), config)
+    # The same agent's keyframes and graph under a name the back-end does not follow: no fleet_path comes.
+    alone = MappingNode(Node("mapping", context=make_context("r2d2_alone")),
+                        config.model_copy(update={"maps_dir": str(tmp_path / "alone")}))  # fmt: skip
+    publishers = {}
+    for agent in ("c3po", "r2d2", "r2d2_alone"):
+        slam = Node("slam", context=make_context(agent))
+        publishers[agent] = (
+            slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50)),
+            slam.create_publisher(topics.GRAPH_UPDATES.type, topics.GRAPH_UPDATES.name, topics.GRAPH_UPDATES.qos()),
+        )
+    mapped = ("r2d2", "r2d2_alone")
+    assert wait_until(lambda: all(g.matched_subscriptions for _, g in publishers.values())
+                      and all(publishers[a][0].matched_subscriptions for a in mapped), 10.0)  # fmt: skip
+    for agent in mapped:
+        for i in r2d2_true:
+            publishers[agent][0].publish(_keyframe("r2d2", i, r2d2_own[i], stamps[i]))
+    c3po_writer: GraphDeltaWriter[Any] = GraphDeltaWriter()
+    update = c3po_writer.update(c3po_true, {i: 1_764_000_000.0 + i for i in c3po_true}, [])
+    assert update is not None
+    publishers["c3po"][1].publish(graph_message("c3po", update))
+    # r2d2 recognises c3po where both passed: same true pose, so the closure is the identity.
+    closures = [
+        get_type("fleetslam_msgs/msg/GraphConstraint")(
+            from_id=i, to_id=j, from_agent="r2d2", to_agent="c3po", kind=2, relative=pose_msg(np.eye(4)),
+            information=np.eye(6).reshape(36) * 1e4, to_epoch=c3po_writer.epoch,
+        )
+        for i, j in ((0, 0), (3, 3), (6, 6), (8, 5), (11, 2), (13, 0))
+    ]  # fmt: skip
+    r2d2_writer: GraphDeltaWriter[Any] = GraphDeltaWriter()
+    update = r2d2_writer.update(r2d2_own, {i: stamps[i] / 1e9 for i in r2d2_own}, closures)
+    assert update is not None
+    publishers["r2d2"][1].publish(graph_message("r2d2", update))
+    publishers["r2d2_alone"][1].publish(graph_message("r2d2", update))
+
+    def error(mapping: MappingNode) -> float:
+        """Largest distance of r2d2's keyframes, as a mapping node holds them and the back-end's placement lands
+        them, from where they truly were."""
+        T = follower.fleet.T_fleet_map
+        scans = dict(mapping.mapper.scans)
+        if T is None or len(scans) < 14:
+            return math.inf
+        return max(float(np.linalg.norm((T @ scans[i].pose)[:3, 3] - r2d2_true[i][:3, 3])) for i in r2d2_true)
+
+    assert wait_until(lambda: error(follower) < 0.01, 60.0), error(follower)
+    solution = backend.solution
+    assert solution is not None and len(solution.kept) == 6 and not solution.rejected
+    T_fleet_map = follower.fleet.T_fleet_map
+    assert T_fleet_map is not None
+    tester = Node("tester", context=make_context())
+
+    def wall_offsets(agent: str) -> np.ndarray:
+        save = tester.create_client("fleetslam_msgs/srv/SaveMap", f"/{agent}/map/save")
+        assert save.wait_for_service(5.0)
+        response = save.call(get_type("fleetslam_msgs/srv/SaveMap_Request")(path="r2d2.bt"), timeout=60)
+        assert response.success, response.message
+        centres, _ = OccupancyOctree.read(Path(response.path)).occupied_centers()
+        return np.asarray(transform_points(T_fleet_map, centres)[:, 1] - WALL_Y)
+
+    offsets = wall_offsets("r2d2")
+    assert len(offsets) > 100 and np.abs(offsets - 0.025).max() <= 0.1, np.sort(offsets)[:10]
+    assert wait_until(lambda: len(alone.mapper.scans) == 14 and not alone.mapper.pending, 60.0)
+    assert not alone.fleet.active and error(alone) > 0.05  # its own graph, bent: 14 cm between its ends
+    offsets = wall_offsets("r2d2_alone")  # its own graph: the wall smeared towards the robot (14 cm at most)
+    assert (np.abs(offsets - 0.025) > 0.1).sum() >= 10, np.sort(offsets)[:20]
