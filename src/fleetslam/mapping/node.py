@@ -38,7 +38,7 @@ from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
 from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
-from fleetslam.mapping.fleet_correction import FleetCorrection
+from fleetslam.mapping.fleet_correction import FleetCorrection, stamp_key
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
@@ -87,6 +87,11 @@ class MappingNodeConfig(ConfigModel):
     nothing changes. Off by default: the map then no longer agrees with the agent's own localisation (near the robot
     it is shifted by the back-end's correction there), and subscribing makes the back-end send the agent its whole
     corrected path (~80 B per keyframe) whenever it changes."""
+    fleet_move_tolerance: float = Field(default=0.05, ge=0)
+    """With ``follow_fleet``: a keyframe is integrated again only when the back-end's corrections (or its own graph)
+    moved its scan more than this (m, bound on any of its points) since it was integrated; one voxel by default,
+    twice the mapper's own tolerance: every solve of the back-end nudges most keyframes by centimetres (a new
+    closure bends the chains a little), and re-integrating for each nudge rebuilt the map every few seconds."""
     fleet_placement_tolerance: float = Field(default=0.05, gt=0)
     """With ``follow_fleet``: a placement of this agent by the back-end that moved less than this (m, and a tenth of
     it in radians) from the one followed is not taken (every keyframe would move with it); keep it equal to the
@@ -171,6 +176,7 @@ class MappingNode:
         self._handed: dict[int, NDArray[np.floating]] = {}
         """While following the fleet: the pose each keyframe was last handed to the mapper with."""
         self._handed_epoch = 0
+        self._handed_any = False
         self._fleet_child = ""
         if self.config.follow_fleet:
             self._follow_fleet(node)
@@ -271,6 +277,11 @@ class MappingNode:
         self._fleet_changed = False
         if self.graph.epoch != self._handed_epoch:  # SLAM restarted: its keyframe ids mean other keyframes
             self._handed, self._handed_epoch = {}, self.graph.epoch
+        if not self._handed_any:
+            self._handed_any = True
+            corrected = sum(stamp_key(t) in self.fleet.corrected for t in self.graph.stamps.values())
+            log.info("following the fleet back-end: %d of %d keyframes corrected, the others follow from them",
+                     corrected, len(self.graph.poses))  # fmt: skip
         poses, self._chain = self.fleet.poses(self.graph.poses, self.graph.stamps)
         known = [i for i in poses if i in self._handed]
         changed: dict[int, NDArray[np.floating]] = {i: pose for i, pose in poses.items() if i not in self._handed}
@@ -278,7 +289,7 @@ class MappingNode:
             same = (np.stack([poses[i] for i in known]) == np.stack([self._handed[i] for i in known])).all(axis=(1, 2))
             changed.update({i: poses[i] for i, keep in zip(known, same.tolist(), strict=True) if not keep})
         if changed:
-            self.mapper.update_poses(changed)
+            self.mapper.update_poses(changed, tolerance=self.config.fleet_move_tolerance)
             self._handed.update(changed)
 
     def _request_graph(self) -> None:
