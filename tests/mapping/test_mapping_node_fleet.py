@@ -255,3 +255,53 @@ def test_the_real_back_end_straightens_a_drifting_agent_s_map(
     assert not alone.fleet.active and error(alone) > 0.05  # its own graph, bent: 14 cm between its ends
     offsets = wall_offsets("r2d2_alone")  # its own graph: the wall smeared towards the robot (14 cm at most)
     assert (np.abs(offsets - 0.025) > 0.1).sum() >= 10, np.sort(offsets)[:20]
+
+
+def test_malformed_corrections_are_left_out_and_the_map_goes_on(
+    make_context: Callable[..., Context], tmp_path: Path
+) -> None:
+    true, own, stamps = _route()
+    config = MappingNodeConfig(publish_rate=5.0, follow_fleet=True, maps_dir=str(tmp_path))
+    mapping = MappingNode(Node("mapping", context=make_context("c3po")), config)
+    slam = Node("slam", context=make_context("c3po"))
+    keyframes = slam.create_publisher("fleetslam_msgs/msg/Keyframe", "keyframes", QoSProfile(depth=50))
+    graph = slam.create_publisher("fleetslam_msgs/msg/KeyframeGraph", "graph_updates", QoSProfile(depth=50))
+    backend = Node("fleet_backend", context=make_context())
+    placements = backend.create_publisher(topics.FLEET_PLACEMENTS.type, topics.FLEET_PLACEMENTS.name,
+                                          topics.FLEET_PLACEMENTS.qos())  # fmt: skip
+    path = backend.create_publisher(topics.FLEET_PATH.type, topics.FLEET_PATH.of("c3po"), topics.FLEET_PATH.qos())
+    assert wait_until(lambda: keyframes.matched_subscriptions > 0 and graph.matched_subscriptions > 0
+                      and path.matched_subscriptions > 0 and placements.matched_subscriptions > 0, 10.0)  # fmt: skip
+    for i in range(3):
+        keyframes.publish(_keyframe("c3po", i, own[i], stamps[i]))
+    graph.publish(_graph("c3po", {i: own[i] for i in range(3)}, stamps, 1))
+    assert wait_until(lambda: len(mapping.mapper.scans) == 3 and not mapping.mapper.pending, 60.0)
+    # A placement with a zero rotation, paths with a NaN or a zero quaternion, a path in another frame.
+    zero = transform_msg(T_FLEET_MAP, "fleet", "c3po/map", 1)
+    rotation = zero.transforms[0].transform.rotation
+    rotation.x = rotation.y = rotation.z = rotation.w = 0.0
+    placements.publish(zero)
+    assert wait_until(lambda: mapping.rejected == 1, 10.0), mapping.rejected
+    assert mapping.fleet.T_fleet_map is None
+    placements.publish(transform_msg(T_FLEET_MAP, "fleet", "c3po/map", 1))
+    assert wait_until(lambda: mapping.fleet.T_fleet_map is not None, 10.0)
+    bad = _fleet_path({i: true[i] for i in range(3)}, stamps)
+    bad.poses[1].pose.position.y = float("nan")
+    path.publish(bad)
+    assert wait_until(lambda: mapping.rejected == 2, 10.0), mapping.rejected
+    bad = _fleet_path({i: true[i] for i in range(3)}, stamps)
+    orientation = bad.poses[0].pose.orientation
+    orientation.x = orientation.y = orientation.z = orientation.w = 0.0
+    path.publish(bad)
+    assert wait_until(lambda: mapping.rejected == 3, 10.0), mapping.rejected
+    elsewhere = _fleet_path({i: true[i] for i in range(3)}, stamps)
+    elsewhere.header.frame_id = "world"
+    path.publish(elsewhere)
+    assert wait_until(lambda: mapping.rejected == 4, 10.0), mapping.rejected
+    assert not mapping.fleet.active  # nothing of them was taken
+    for i in range(3):
+        np.testing.assert_allclose(mapping.mapper.scans[i].pose, own[i], atol=1e-9)
+    path.publish(_fleet_path({i: true[i] for i in range(3)}, stamps))  # and a good one still counts
+    assert wait_until(lambda: mapping.fleet.active, 10.0)
+    keyframes.publish(_keyframe("c3po", 3, own[3], stamps[3]))
+    assert wait_until(lambda: 3 in mapping.mapper.scans and not mapping.mapper.pending, 60.0)
