@@ -14,7 +14,8 @@ With ``follow_fleet`` it also subscribes its agent's ``fleet_path`` and ``/fleet
 corrected keyframes and placement; the newest of each decoded at the next tick) and integrates each keyframe where
 the back-end put it, expressed in the agent's own map frame (:mod:`fleetslam.mapping.fleet_correction`); keyframes
 the back-end does not know yet follow the agent's own graph from the newest corrected one. Keyframes that moved
-are integrated again as after the agent's own optimisation (``reintegrate_period``, half a voxel of tolerance).
+more than ``fleet_move_tolerance`` are integrated again as after the agent's own optimisation (at most every
+``reintegrate_period``).
 """
 
 from __future__ import annotations
