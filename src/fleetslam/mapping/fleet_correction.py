@@ -35,15 +35,6 @@ def stamp_key(stamp: float) -> int:
     return round(stamp * 1e9)
 
 
-def _invert_many(poses: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Inverses of a stack of rigid 4×4 poses."""
-    rt = np.swapaxes(poses[:, :3, :3], 1, 2)
-    inverse = np.broadcast_to(np.eye(4), poses.shape).copy()
-    inverse[:, :3, :3] = rt
-    inverse[:, :3, 3] = -np.einsum("nij,nj->ni", rt, poses[:, :3, 3])
-    return inverse
-
-
 def corrected_poses(
     own: Mapping[int, Pose],
     stamps: Mapping[int, float],
@@ -72,7 +63,7 @@ def corrected_poses(
     own_stack = np.stack([np.asarray(own[i], dtype=np.float64) for i in ids])
     index = np.flatnonzero(hit)
     fixed = invert(T_fleet_map) @ np.stack([np.asarray(corrected[keys[k]], np.float64) for k in index])
-    moves = fixed @ _invert_many(own_stack[index])
+    moves = fixed @ invert(own_stack[index])
     # Each keyframe follows the nearest corrected keyframe at or before it (the first corrected one when none is).
     before = np.maximum.accumulate(np.where(hit, np.arange(len(ids)), -1))
     anchor = np.searchsorted(index, np.where(before >= 0, before, index[0]))
