@@ -145,6 +145,18 @@ class OdometryConfig(ConfigModel):
     holds the heading where measured points are few."""
     min_parallax_deg: float = Field(default=1.0, gt=0.0)
     """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
+    triangulation_keyframes: int = Field(default=1, ge=1)
+    """How many of the window's newest keyframes a new keyframe's keypoints without depth are searched in for
+    triangulation, the oldest of them first (the longest baseline, the widest angle; ORB-SLAM searches its
+    covisible keyframes). 1 = the previous keyframe only (the default). Ahead of a camera moving forward, far
+    texture is seen under a few tenths of a degree from the previous keyframe, 25 cm back, and goes
+    untriangulated. Searching the whole window (6), measured on the matrix (benchmarks/slam_matrix.py --set
+    odometry.triangulation_keyframes=6), procedural hall, hand-held: at 320×240 the odometry drifts less (survey
+    3.5/3.2/7.4/4.5 → 1.7/3.5/3.6/3.1 cm at 5/10/15/30 Hz; figure-eight odometry 7.5/9.6/6.6/6.5 →
+    4.9/6.1/6.2/7.1 cm), but with more landmarks tracked fewer keyframes are made (222 → 130 at 5 Hz), fewer loops
+    close on the figure eight (4/6/10/8 → 0/1/1/1) and its ATE gets worse (3.2/2.1/3.0/5.5 → 4.9/3.1/2.9/6.0 cm);
+    at 640×480 the survey goes 2.2/2.9 → 2.9/2.6 cm at 5/10 Hz and tracking at 5 Hz, where most frames are
+    keyframes, costs 19 → 23 ms of CPU per frame. Hence not the default."""
     surface_samples: int = Field(default=3000, ge=0)
     """Depth samples per frame for the point-to-plane term against the newest keyframe's surface, refined together
     with the features (the hybrid RGB-D odometry of DVO or Open3D; :mod:`~fleetslam.slam.surface_alignment`):
