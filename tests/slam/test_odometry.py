@@ -136,3 +136,24 @@ def test_far_texture_is_triangulated_with_an_older_keyframe_of_the_window(textur
     # look-alike shapes along the epipolar line, are metres off).
     off_wall = np.abs(np.abs(points).max(axis=1) - 2.5)
     assert np.median(off_wall) < 0.12 and np.percentile(off_wall, 75) < 0.3
+
+
+def test_keyframes_that_left_the_window_stay_fixed_in_its_adjustment(textures: list[np.ndarray]) -> None:
+    """With ``window_fixed_keyframes`` the keyframes that left the window join its adjustment where they see its
+    landmarks, held where they are; the track stays as accurate as the pair test's."""
+    config = OdometryConfig(window_keyframes=3, window_fixed_keyframes=3, keyframe_translation=0.05)
+    vo = VisualOdometry(config, INTRINSICS)
+    motions = [pose_from_xyz_rpy(0.03 * k, 0.0, 0.01 * k, 0.0, np.radians(1.0 * k), 0.0) for k in range(9)]
+    retired_seen = 0
+    for k, motion in enumerate(motions):
+        result = vo.track(*render(BASE @ motion, INTRINSICS, textures), 0.1 * k)
+        assert not result.lost
+        before = [kf.pose.copy() for kf in vo._retired]
+        if vo.local_mapping() is not None and before:
+            retired_seen += 1
+            for kf, pose in zip(vo._retired, before, strict=True):
+                np.testing.assert_allclose(kf.pose, pose, atol=1e-12)
+    assert retired_seen >= 2 and len(vo._retired) >= 2
+    # The odometry's frame is the first camera's: the last pose is the last motion, to the pair test's bounds.
+    error = invert(motions[-1]) @ vo.pose
+    assert np.linalg.norm(error[:3, 3]) < 0.010 and np.degrees(rotation_angle(error)) < 0.25

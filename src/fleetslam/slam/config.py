@@ -128,6 +128,17 @@ class OdometryConfig(ConfigModel):
     enough to track the next frames."""
     window_keyframes: int = Field(default=6, ge=1)
     """Keyframes bundle-adjusted together (poses and landmarks) at each new keyframe; 1 disables the adjustment."""
+    window_fixed_keyframes: int = Field(default=0, ge=0)
+    """Keyframes that left the window kept in its adjustment, fixed, where they observe its landmarks (ORB-SLAM's
+    fixed covisible keyframes): the landmarks stay tied to where earlier keyframes saw them, so the window's
+    oldest keyframe is not the only anchor. 0 = off (the default). Without wheels, the window's oldest keyframe
+    is all that holds it, and at 320×240 on the procedural hall (30-60 tracked landmarks, a keyframe every few
+    frames) the heading random-walks by 0.2° per keyframe. Measured with 6 (benchmarks/slam_matrix.py --set
+    odometry.window_fixed_keyframes=6), procedural hall, 320×240, hand-held: survey 3.5/3.2/7.4/4.5 →
+    2.5/2.7/3.9/3.0 cm at 5/10/15/30 Hz, figure eight 3.2/2.1/3.0/5.5 → 3.8/2.6/3.1/4.9 cm (4 of the 8 cells
+    within 3 cm instead of 2), loop_revisit 2.7/1.8/2.4 → 2.9/1.8/2.1 cm at 5/10/30 Hz; 640×480 hand-held survey
+    2.2/2.9 → 2.5/1.7 cm at 5/10 Hz; ground robot, 320×240: survey at 5 Hz 1.09 → 1.27 cm, figure eight at 10 Hz
+    1.03 → 1.27 cm, loop_revisit at 5 Hz 1.27 → 1.50 cm. Not the default until the whole matrix is run."""
     window_iterations: int = Field(default=5, ge=1)
     """Levenberg–Marquardt iterations of the window's adjustment."""
     pixel_std: float = Field(default=1.0, gt=0.0)

@@ -207,6 +207,8 @@ class VisualOdometry:
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
         self.window: deque[_WindowKeyframe] = deque(maxlen=config.window_keyframes)
+        self._retired: deque[_WindowKeyframe] = deque(maxlen=config.window_fixed_keyframes or 1)
+        """Keyframes that left the window, newest last: held fixed in its adjustment where they share landmarks."""
         self.pose = np.eye(4)
         self._velocity = np.eye(4)
         """Motion of the last frame, ``T_previous_current``."""
@@ -515,6 +517,8 @@ class VisualOdometry:
         unmeasured[tracked] = False
         far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
         observed = np.concatenate([tracked, new_index, far_index])
+        if len(self.window) == self.window.maxlen and self.config.window_fixed_keyframes:
+            self._retired.append(self.window[0])
         self.window.append(
             _WindowKeyframe(
                 pose=pose.copy(),
@@ -634,15 +638,21 @@ class VisualOdometry:
         return np.concatenate(found_index), np.concatenate(found_ids), unmeasured
 
     def _adjust_window(self) -> NDArray[np.float64]:
-        """Bundle-adjust the window (its oldest keyframe fixed) and write the result back; returns the newest
-        keyframe's pose."""
-        window = list(self.window)
+        """Bundle-adjust the window (its oldest keyframe fixed, and the ``window_fixed_keyframes`` that left it
+        before, fixed, observing the landmarks they share with it: ORB-SLAM's fixed covisible keyframes, which tie
+        the landmarks to where earlier keyframes saw them) and write the result back; returns the newest keyframe's
+        pose."""
+        retired = list(self._retired) if self.config.window_fixed_keyframes else []
+        window = retired + list(self.window)
+        fixed = np.arange(len(window)) <= len(retired)
         obs_pose = np.concatenate([np.full(len(kf.landmarks), k, np.intp) for k, kf in enumerate(window)])
         ids = np.concatenate([kf.landmarks for kf in window])
         _, found = self.local_map.rows(ids)
-        # Landmarks seen from one keyframe only constrain nothing but themselves.
+        # Landmarks seen from one keyframe only constrain nothing but themselves; those the window does not see
+        # are not its business.
         unique, counts = np.unique(ids[found], return_counts=True)
-        shared = np.isin(ids, unique[counts >= 2]) & found
+        in_window = np.concatenate([kf.landmarks for kf in self.window])
+        shared = np.isin(ids, unique[counts >= 2]) & np.isin(ids, in_window) & found
         if shared.sum() < self.config.min_inliers:
             return window[-1].pose
         landmark_ids, point_index = np.unique(ids[shared], return_inverse=True)
@@ -659,7 +669,7 @@ class VisualOdometry:
             pixels,
             depths,
             scales,
-            fixed=np.arange(len(window)) == 0,
+            fixed=fixed,
         )
         problem.priors = self._wheel_priors(window)
         result = bundle_adjust(problem, iterations=self.config.window_iterations)
@@ -755,6 +765,7 @@ class VisualOdometry:
         pose = self.constrain(pose)
         self.local_map.clear()
         self.window.clear()
+        self._retired.clear()
         self._candidates.clear()
         self._coasted = 0.0
         self._lost_frames = 0
@@ -772,6 +783,7 @@ class VisualOdometry:
         self._velocity = np.eye(4)
         self.local_map.clear()
         self.window.clear()
+        self._retired.clear()
         self._candidates.clear()
         world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
         ids = self.local_map.add(world, result.descriptors, self.frames)
