@@ -167,7 +167,8 @@ class OdometryConfig(ConfigModel):
     4.9/6.1/6.2/7.1 cm), but with more landmarks tracked fewer keyframes are made (222 → 130 at 5 Hz), fewer loops
     close on the figure eight (4/6/10/8 → 0/1/1/1) and its ATE gets worse (3.2/2.1/3.0/5.5 → 4.9/3.1/2.9/6.0 cm);
     at 640×480 the survey goes 2.2/2.9 → 2.9/2.6 cm at 5/10 Hz and tracking at 5 Hz, where most frames are
-    keyframes, costs 19 → 23 ms of CPU per frame. Hence not the default."""
+    keyframes, costs 19 → 23 ms of CPU per frame. Together with ``window_fixed_keyframes=6`` it was worse than
+    that alone (hand-held 320×240: none of the 8 cells within 3 cm). Hence not the default."""
     surface_samples: int = Field(default=3000, ge=0)
     """Depth samples per frame for the point-to-plane term against the newest keyframe's surface, refined together
     with the features (the hybrid RGB-D odometry of DVO or Open3D; :mod:`~fleetslam.slam.surface_alignment`):
