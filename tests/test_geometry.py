@@ -30,6 +30,11 @@ def test_invert_and_relative(rng: np.random.Generator) -> None:
     # float64 round-off of two or three 4×4 products with translations of a few metres: ~1e-15, bound 1e-12
     np.testing.assert_allclose(g.invert(a) @ a, np.eye(4), atol=1e-12)
     np.testing.assert_allclose(a @ g.relative(a, b), b, atol=1e-12)
+    stack = np.stack([[a, b], [b, a], [g.random_pose(rng), np.eye(4)]])  # 3×2 poses: each inverted as one is
+    inverses = g.invert(stack)
+    assert inverses.shape == stack.shape
+    for i, j in np.ndindex(3, 2):
+        np.testing.assert_allclose(inverses[i, j], g.invert(stack[i, j]), atol=1e-15)
 
 
 def test_transform_points_matches_homogeneous(rng: np.random.Generator) -> None:

@@ -66,13 +66,20 @@ def yaw_of(pose: ArrayLike) -> float:
 
 
 def invert(pose: ArrayLike) -> Matrix4:
-    """Inverse of a rigid 4×4 pose (uses the transpose, not a general inverse)."""
+    """Inverse of a rigid 4×4 pose, or of each of a stack of them (…×4×4; uses the transpose, not a general
+    inverse)."""
     pose = np.asarray(pose, dtype=np.float64)
-    inv = np.eye(4)
-    rt = pose[:3, :3].T
-    inv[:3, :3] = rt
-    inv[:3, 3] = -rt @ pose[:3, 3]
-    return inv
+    if pose.ndim == 2:
+        inv = np.eye(4)
+        rt = pose[:3, :3].T
+        inv[:3, :3] = rt
+        inv[:3, 3] = -rt @ pose[:3, 3]
+        return inv
+    rts = np.swapaxes(pose[..., :3, :3], -1, -2)
+    stack = np.broadcast_to(np.eye(4), pose.shape).copy()
+    stack[..., :3, :3] = rts
+    stack[..., :3, 3] = -(rts @ pose[..., :3, 3, None])[..., 0]
+    return stack
 
 
 def orthonormalized(pose: ArrayLike) -> Matrix4:

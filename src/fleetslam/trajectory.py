@@ -103,15 +103,20 @@ class InterpolatedPose:
         return interpolated_pose_at(self._stamps, self._poses, stamp, self._tolerance, self._max_gap)
 
 
+def tum_line(stamp: float, pose: NDArray[np.float64], digits: int = 6) -> str:
+    """One TUM line, ``stamp tx ty tz qx qy qz qw`` and a newline; the stamp with 6 decimals (µs), the pose with
+    ``digits``."""
+    t, q = pose_to_quat(pose)
+    return f"{stamp:.6f} {' '.join(f'{v:.{digits}f}' for v in (*t, *q))}\n"
+
+
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:
     """Write a trajectory in TUM format (one ``stamp tx ty tz qx qy qz qw`` line per pose)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", encoding="utf-8") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
-        for stamp, pose in zip(trajectory.stamps, trajectory.poses, strict=True):
-            t, q = pose_to_quat(pose)
-            f.write(f"{stamp:.6f} {t[0]:.6f} {t[1]:.6f} {t[2]:.6f} {q[0]:.6f} {q[1]:.6f} {q[2]:.6f} {q[3]:.6f}\n")
+        f.writelines(tum_line(stamp, pose) for stamp, pose in zip(trajectory.stamps, trajectory.poses, strict=True))
 
 
 def read_tum(path: str | Path) -> Trajectory:

@@ -65,13 +65,20 @@ def test_headless_simulated_demo_produces_every_result(tmp_path: Path) -> None:
         tree = OccupancyOctree.read(run / "maps" / f"{name}.bt")
         assert tree.num_nodes() > 1000, name
     for robot in ("c3po", "r2d2"):
-        assert len(read_tum(run / "trajectories" / f"{robot}.txt")) > 20
-        assert len(read_tum(run / "ground_truth" / f"{robot}.txt")) > 20
+        final = read_tum(run / "trajectories" / f"{robot}.txt")
+        live = read_tum(run / "trajectories_live" / f"{robot}.txt")
+        assert len(final) > 20 and len(read_tum(run / "ground_truth" / f"{robot}.txt")) > 20
+        # SLAM's own trajectory as the run ended: the frames it tracked (each published live), re-anchored.
+        common = set(final.stamps.tolist()) & set(live.stamps.tolist())
+        assert len(common) >= 0.9 * max(len(final), len(live)), (len(common), len(final), len(live))
+        assert f"[demo] {robot}: final trajectory" in out.getvalue()
         assert 0.0 <= result.ate[robot] < 1.0  # smoke bound (7 and 17 mm measured); accuracy is tests/integration's
+        assert 0.0 <= result.ate_live[robot] < 1.0
     assert (run / "recording" / "metadata.yaml").is_file()
     assert (run / "trajectories.png").stat().st_size > 1000 and (run / "bandwidth.png").stat().st_size > 1000
     report = (run / "report.md").read_text()
-    assert "ATE RMSE" in report and "/c3po/camera/rgb/image_raw" in report
+    assert "ATE RMSE (m), final" in report and "ATE RMSE (m), live" in report
+    assert "/c3po/camera/rgb/image_raw" in report
     assert "<table>" in (run / "report.html").read_text()
     links = {(r["topic"], r["node_sub"]) for r in json.loads((run / "statistics.json").read_text())}
     # Each agent receives the other's keyframe summaries and graph updates (collaborative SLAM), not its images.
@@ -106,15 +113,18 @@ def test_report_tables_per_robot_slam_and_per_process(tmp_path: Path) -> None:
     truth = pose_from_xyz_rpy(4.5, 4.0, 0.0, 0.0, 0.0, np.pi)
     placed = pose_from_xyz_rpy(0.03, 0.04, 0, 0, 0, 0) @ truth  # 5 cm off
     result = DemoResult(tmp_path, 100.0, [], processes=processes, ate={"c3po": 0.0123, "r2d2": 0.02},
+                        ate_live={"c3po": 0.0251},
                         slam={"c3po": values, "r2d2": None},
                         placements={"c3po": (2.0, np.eye(4)), "r2d2": (31.4, placed)},
                         true_placements={"c3po": np.eye(4), "r2d2": truth})  # fmt: skip
     write_results(result)
     lines = (tmp_path / "report.md").read_text().splitlines()
     header_row = next(line for line in lines if line.startswith("| robot | frames received"))
-    assert header_row.endswith("| odometry ms (mean) | peer keyframes | peer closures | ATE RMSE (m) |")
-    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 2 | 203 | 3 | 9 | 11.42 | 150 | 31 | 0.012 |" in lines
-    assert "| r2d2 | — | — | — | — | — | — | — | — | — | — | — | — | 0.020 |" in lines  # no diagnostics
+    assert header_row.endswith(
+        "| odometry ms (mean) | peer keyframes | peer closures | ATE RMSE (m), final | ATE RMSE (m), live |"
+    )
+    assert "| c3po | 812 | 790 | 22 | 1 | 14 | 2 | 203 | 3 | 9 | 11.42 | 150 | 31 | 0.012 | 0.025 |" in lines
+    assert "| r2d2 | — | — | — | — | — | — | — | — | — | — | — | — | 0.020 | — |" in lines  # no diagnostics
     # The fleet frame: when each robot's SLAM placed it, and the placement's error against the true start poses.
     assert "| c3po | 2 | 0.000 | 0.00 |" in lines and "| r2d2 | 31 | 0.050 | 0.00 |" in lines
     assert "| demo (router, monitor) | 100 | 3.0 | 3.0 | 250 | 0 |" in lines

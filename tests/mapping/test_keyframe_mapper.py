@@ -145,6 +145,17 @@ def test_a_move_counts_by_how_far_the_scan_moves() -> None:
     assert mapper.reintegrated == 1
 
 
+def test_a_move_may_be_judged_with_another_tolerance() -> None:
+    """The mapping node following the fleet back-end judges the back-end's moves by a tolerance of its own."""
+    points, pose = _room_keyframe(0)
+    mapper = _fresh({0: (points, pose), 1: _room_keyframe(1)}, rebuild_fraction=np.inf)  # tolerance: 5 cm
+    moved = pose_from_planar(0.08, 0.0, 0.0) @ pose
+    assert mapper.update_poses({0: moved}, tolerance=0.1) == 0  # 8 cm: within 10 cm
+    np.testing.assert_array_equal(mapper.scans[0].pose, moved)  # the pose is taken all the same
+    assert mapper.update_poses({0: moved}) == 1  # beyond the mapper's own 5 cm
+    assert mapper.update_poses({0: moved}, tolerance=0.1) == 0  # judged again: it need not move after all
+
+
 def test_a_graph_pose_that_overtakes_its_keyframe_is_used() -> None:
     points, pose = _room_keyframe(0)
     optimised = pose_from_planar(0.3, 0.0, 0.0) @ pose

@@ -152,6 +152,7 @@ OWN_HASHES = {
     "fleetslam_msgs/srv/GetKeyframeSummaries": (
         "RIHS01_928513aad536422b553cf0e2a3a107dfb779f34f562678b24f0c4a15b04fa451"
     ),
+    "fleetslam_msgs/srv/GetTrajectory": "RIHS01_a087c970eb72cd01b66f5ee0b19527d90c08be0cc10f7f1ac457a5397cf77091",
     "fleetslam_msgs/msg/Finding": "RIHS01_c422378124f91dca23b64e135afa1f381348ce39e43d88ebcc2ae3be7e06e446",
     "fleetslam_msgs/msg/FindingArray": "RIHS01_ea5441b06b4b8488b4a81f5b9ea46d9b58c9835d924d3a0d4545b780adaeadd8",
     "fleetslam_msgs/srv/CreateFinding": "RIHS01_82ff938e003f4b932c292c00ba9232818ff2d9780fb32de9b2b242e51649ecb5",

@@ -166,3 +166,59 @@ def test_images_and_odometry_stamped_far_in_the_future_do_not_stall_slam(
     after = stream(4.0)
     assert after >= 0.8 * before, (before, after)
     assert slam.priors_used - priors >= 0.8 * after  # the wheel prior survived the forged stamps
+
+
+def test_trajectory_service_returns_every_processed_frame_on_the_optimised_keyframes(
+    make_context: Callable[..., Context],
+) -> None:
+    """``slam/trajectory`` over a real router: refused before any frame; then every frame the node tracked, stamped
+    as its camera frame, on its keyframe's optimised pose (what an offline run's result holds), near the truth."""
+    from fleetslam.datasets.base import Intrinsics
+    from fleetslam.msg.conversions import pose_matrix
+    from fleetslam.msg.typesys import get_type, header, ns_from_stamp
+
+    from .textured_room import make_textures, render
+
+    slam = SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig())
+    client = Node("operator", context=make_context()).create_client(
+        "fleetslam_msgs/srv/GetTrajectory", "/c3po/slam/trajectory"
+    )
+    assert client.wait_for_service(5.0)
+    request = get_type("fleetslam_msgs/srv/GetTrajectory_Request")()
+    response = client.call(request, timeout=10)
+    assert not response.success and "no trajectory yet" in response.message and not response.trajectory.poses
+
+    intrinsics = Intrinsics(80.0, 80.0, 40.0, 30.0, 80, 60)
+    info = message_from_dict("sensor_msgs/msg/CameraInfo", {"width": 80, "height": 60})
+    info.k[:] = [80.0, 0.0, 40.0, 0.0, 80.0, 30.0, 0.0, 0.0, 1.0]
+    slam.on_camera_info(info)
+    image = get_type("sensor_msgs/msg/Image")
+    textures = make_textures(np.random.default_rng(0))
+    base_camera = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
+    truth = [pose_from_planar(0.02 * k, 0.0, 0.0) @ base_camera for k in range(12)]  # 2 cm forward per frame
+    stamps_ns = [1_000_000_000 + k * 100_000_000 for k in range(len(truth))]
+    for pose, stamp_ns in zip(truth, stamps_ns, strict=True):
+        rgb, depth = render(pose, intrinsics, textures)
+        pair = FramePair(
+            stamp_ns,
+            image(header=header("camera", stamp_ns), height=60, width=80, encoding="rgb8", is_bigendian=0, step=240,
+                  data=np.ascontiguousarray(rgb).reshape(-1)),
+            image(header=header("camera", stamp_ns), height=60, width=80, encoding="32FC1", is_bigendian=0,
+                  step=320, data=np.ascontiguousarray(depth, np.float32).view(np.uint8).reshape(-1)),
+            time.monotonic(),
+        )  # fmt: skip
+        with slam._lock:
+            assert slam.process(pair) is not None
+
+    response = client.call(request, timeout=10)
+    assert response.success, response.message
+    assert response.keyframes >= 1 and response.trajectory.header.frame_id == "map"
+    stamps = [ns_from_stamp(p.header.stamp) for p in response.trajectory.poses]
+    assert stamps == stamps_ns
+    assert {p.header.frame_id for p in response.trajectory.poses} == {"map"}
+    assert slam.pipeline is not None
+    expected = slam.pipeline.result().trajectory.poses
+    got = np.stack([pose_matrix(p.pose) for p in response.trajectory.poses])
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    relative = [np.linalg.inv(truth[0]) @ t for t in truth]  # the map frame is the first camera's
+    np.testing.assert_allclose(got[:, :3, 3], [r[:3, 3] for r in relative], atol=0.01)

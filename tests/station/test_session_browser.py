@@ -14,7 +14,7 @@ import pytest
 from fleetslam.errors import FleetslamError
 from fleetslam.geometry import make_pose
 from fleetslam.inspection.findings import Finding, FindingStore
-from fleetslam.inspection.report import _occupied
+from fleetslam.inspection.run_folder import occupied_centres
 from fleetslam.mapping.octree import OccupancyOctree
 from fleetslam.middleware.recording import BagWriter
 from fleetslam.msg.conversions import image_msg
@@ -69,7 +69,7 @@ def test_a_finished_run_is_reviewed_with_a_time_slider(browser_page: Any, tmp_pa
     page, errors = browser_page
     run = tmp_path / "demo-run"
     make_run(run)
-    voxels = len(_occupied(run / "maps" / "c3po.bt"))
+    voxels = len(occupied_centres(run / "maps" / "c3po.bt"))
     with StationServer(None, port=0, session=run) as server:
         page.goto(server.url)
         page.wait_for_function("window.fleetslam.session.data !== null", timeout=30000)

@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         route=args.route, secure=args.secure, known_starts=args.known_starts,
     )  # fmt: skip
     for robot, value in sorted(result.ate.items()):
-        print(f"ATE {robot}: {value:.3f} m (SLAM vs ground truth, aligned)")
+        live = f"; live poses {result.ate_live[robot]:.3f} m" if robot in result.ate_live else ""
+        print(f"ATE {robot}: {value:.3f} m (final SLAM trajectory vs ground truth, aligned{live})")
     print(f"results in {result.out_dir}: report.md, report.html, statistics.json, maps/, trajectories/, plots")
     return 0

@@ -165,8 +165,10 @@ class FleetGraph:
 
     reference: str = ""
     """The agent whose map frame is the fleet frame; empty: the alphabetically first agent known."""
-    odometry_sigma: tuple[float, float] = (0.05, 0.02)
-    """Standard deviation (m, rad) of the relative pose of two consecutive keyframes of one agent."""
+    odometry_sigma: tuple[float, float] = (0.01, 0.005)
+    """Standard deviation (m, rad) of the relative pose of two consecutive keyframes of one agent (from its own
+    optimised graph: millimetres apart over a keyframe's 25 cm in the benchmarks; 5 cm let imprecise closures bend
+    the agents' chains, the reference's included: 3-agent joint fleet ATE 7.4 cm against 1.7 cm now)."""
     closure_sigma: tuple[float, float] = (0.05, 0.02)
     """Standard deviation (m, rad) of an inter-agent closure."""
     inlier_probability: float = 0.99

@@ -11,7 +11,9 @@ placed; the fleet map node prefers these to the agents' own ``slam/fleet_transfo
 (nav_msgs/Path of the agent's corrected keyframes in the fleet frame, each stamped with its keyframe's stamp).
 
 Nothing flows back to the agents' SLAM: an agent keeps mapping in its own frame whatever happens here (cut off,
-back-end restarted), and the back-end catches up from the agents' graphs when they come back.
+back-end restarted), and the back-end catches up from the agents' graphs when they come back. An agent's mapping node
+may follow its ``fleet_path`` (``follow_fleet``: its keyframes integrated where the solve put them, see
+:mod:`fleetslam.mapping.fleet_correction`), and goes on from its own graph when the paths stop.
 """
 
 from __future__ import annotations
@@ -60,9 +62,10 @@ class FleetGraphConfig(ConfigModel):
     """Largest share of one core the solves may take: a solve that took t s of CPU time (publishing included; not
     the time spent waiting for a core on a busy machine) is followed by the next one no sooner than t / max_load s
     after it started."""
-    odometry_sigma: tuple[float, float] = (0.05, 0.02)
+    odometry_sigma: tuple[float, float] = (0.01, 0.005)
     """Standard deviation (m, rad) of the relative pose of two consecutive keyframes of one agent (its own
-    optimised poses; known inliers)."""
+    optimised poses; known inliers). Tight: an agent's own chain is far more precise over a keyframe than an
+    inter-agent closure, which must not bend it."""
     closure_sigma: tuple[float, float] = (0.05, 0.02)
     """Standard deviation (m, rad) of an inter-agent closure (the agents' verification noise)."""
     inlier_probability: float = Field(default=0.99, gt=0.0, lt=1.0)

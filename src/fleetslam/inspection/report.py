@@ -15,7 +15,6 @@ from __future__ import annotations
 import base64
 import datetime as dt
 import io
-import json
 import logging
 import os
 import shutil
@@ -32,6 +31,7 @@ from numpy.typing import NDArray
 
 from fleetslam.errors import FleetslamError
 from fleetslam.inspection.findings import SEVERITIES, Finding, FindingStore
+from fleetslam.inspection.run_folder import load_json, occupied_centres, read_placements, read_trajectories
 
 log = logging.getLogger(__name__)
 
@@ -92,36 +92,6 @@ def _fmt(point: Sequence[float] | NDArray[np.float64]) -> str:
     return "(" + ", ".join(f"{c:.2f}" for c in point) + ")"
 
 
-def _load_json(path: Path) -> Any:
-    if not path.is_file():
-        return None
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except ValueError as err:
-        log.warning("%s is not JSON (%s): left out of the report", path, err)
-        return None
-
-
-def _placements(run: Path) -> dict[str, NDArray[np.float64]]:
-    """Per robot, ``T_fleet_map``: from ``fleet_frame.json``, and the identity for the robot whose map is the fleet
-    frame (``start_poses.yaml``'s ``fleet_frame_of``)."""
-    out: dict[str, NDArray[np.float64]] = {}
-    placed = _load_json(run / "fleet_frame.json") or {}
-    for robot, entry in placed.items():
-        try:
-            out[robot] = np.asarray(entry["T_fleet_map"], dtype=np.float64).reshape(4, 4)
-        except (KeyError, TypeError, ValueError):
-            log.warning("fleet_frame.json: no T_fleet_map for %s", robot)
-    settings = run / "start_poses.yaml"
-    if settings.is_file():
-        import yaml
-
-        reference = (yaml.safe_load(settings.read_text()) or {}).get("fleet_frame_of")
-        if isinstance(reference, str):
-            out.setdefault(reference, np.eye(4))
-    return out
-
-
 def _fleet_position(finding: Finding, placements: Mapping[str, NDArray[np.float64]]) -> NDArray[np.float64] | None:
     if finding.fleet_position is not None:
         return np.asarray(finding.fleet_position, dtype=np.float64)
@@ -129,26 +99,6 @@ def _fleet_position(finding: Finding, placements: Mapping[str, NDArray[np.float6
         T = placements[finding.agent]
         return np.asarray(T[:3, :3] @ np.asarray(finding.position) + T[:3, 3], dtype=np.float64)
     return None
-
-
-def _trajectories(run: Path, folder: str) -> dict[str, Any]:
-    from fleetslam.trajectory import read_tum
-
-    directory = run / folder
-    out: dict[str, Any] = {}
-    for path in sorted(directory.glob("*.txt")) if directory.is_dir() else []:
-        try:
-            out[path.stem] = read_tum(path)
-        except (FleetslamError, ValueError) as err:
-            log.warning("%s: %s", path, err)
-    return out
-
-
-def _occupied(path: Path) -> NDArray[np.float64]:
-    from fleetslam.mapping.octree import OccupancyOctree
-
-    centres, _ = OccupancyOctree.read(path).occupied_centers()
-    return np.asarray(centres, dtype=np.float64)
 
 
 def levelling_rotation(
@@ -207,7 +157,7 @@ def _overview(
     drawn = False
     fig, ax = plt.subplots(figsize=(8, 6), dpi=120)
     if fleet_map.is_file():
-        centres = _occupied(fleet_map) @ level.T
+        centres = occupied_centres(fleet_map) @ level.T
         if len(centres):  # the floor is the lowest occupied layer (a few stray cells below it aside)
             floor = float(np.percentile(centres[:, 2], 2.0))
             band = centres[(centres[:, 2] > floor + 0.1) & (centres[:, 2] < floor + 1.5)]
@@ -250,7 +200,7 @@ def _coverage(run: Path, slam: Mapping[str, Any]) -> Table:
     maps = sorted((run / "maps").glob("*.bt")) if (run / "maps").is_dir() else []
     for path in maps:
         try:
-            centres = _occupied(path)
+            centres = occupied_centres(path)
         except (FleetslamError, OSError, ValueError) as err:
             table.rows.append([path.stem, f"unreadable: {err}", MISSING, MISSING, MISSING])
             continue
@@ -270,8 +220,8 @@ def _coverage(run: Path, slam: Mapping[str, Any]) -> Table:
 
 def _accuracy(run: Path, slam: Mapping[str, Any], truth: Mapping[str, Any]) -> Table:
     table = Table(("robot", "ATE RMSE (m)", "keyframes", "loop closures", "peer closures", "placement error (m)"))
-    figures = _load_json(run / "slam.json") or {}
-    placed = _load_json(run / "fleet_frame.json") or {}
+    figures = load_json(run / "slam.json") or {}
+    placed = load_json(run / "fleet_frame.json") or {}
     for robot in sorted(set(slam) | set(figures)):
         ate = MISSING
         if robot in slam and robot in truth and len(slam[robot].poses) >= 3 and len(truth[robot].poses) >= 3:
@@ -296,7 +246,7 @@ def _accuracy(run: Path, slam: Mapping[str, Any], truth: Mapping[str, Any]) -> T
 
 def _network(run: Path) -> Table:
     table = Table(("agent", "kB/s", "delivered", "dropped", "busiest topic"))
-    rows = _load_json(run / "statistics.json") or []
+    rows = load_json(run / "statistics.json") or []
     per_agent: dict[str, dict[str, Any]] = {}
     for row in rows:
         if not isinstance(row, dict):
@@ -327,8 +277,8 @@ def build_report(run: Path) -> InspectionReport:
     if not run.is_dir():
         raise ReportError(f"{run} is not a run directory")
     store = FindingStore.load(run / "findings")
-    placements = _placements(run)
-    slam, truth = _trajectories(run, "trajectories"), _trajectories(run, "ground_truth")
+    placements = read_placements(run)
+    slam, truth = read_trajectories(run, "trajectories"), read_trajectories(run, "ground_truth")
     numbered: list[tuple[int, Finding, NDArray[np.float64] | None]] = []
     shown: list[ReportFinding] = []
     for number, finding in enumerate(store.findings, start=1):

@@ -187,6 +187,7 @@ def run_demo(
             router_usage = router.usage()
             if router_usage is not None:
                 usage.insert(1, router_usage)
+            final = _final_trajectories(monitor.node, robots, output) if mode == "sim" else {}
             if mode == "sim":
                 _save_maps(monitor.node, robots, output)
             supervisor.stop()
@@ -199,8 +200,12 @@ def run_demo(
         rows = monitor.table.rows()
     result = DemoResult(out_dir, elapsed, rows, monitor.history, processes=usage)
     if mode == "sim":
-        tracks = {**monitor.trajectories(), **simulator_ground_truth(out_dir / GROUND_TRUTH_BASE_DIR, robots)}
-        result.ate = write_trajectories(tracks, robots, out_dir, extrinsics)
+        live = {key.replace("/slam", "/live"): track for key, track in monitor.trajectories().items()}
+        # The final trajectory where SLAM answered, else (with a warning, printed) the live one stands in for it.
+        final_tracks = {f"{robot}/slam": final.get(robot, live[f"{robot}/live"]) for robot in robots}
+        tracks = {**live, **final_tracks, **simulator_ground_truth(out_dir / GROUND_TRUTH_BASE_DIR, robots)}
+        ate = write_trajectories(tracks, robots, out_dir, extrinsics)
+        result.ate, result.ate_live = ate["slam"], ate["live"]
         result.plots.append(plot_trajectories(robots, out_dir))
         diagnostics = monitor.slam_diagnostics()
         result.slam = {robot: diagnostics.get(robot) for robot in robots}
@@ -248,6 +253,34 @@ def _write_inspection_report(out_dir: Path, output: TextIO) -> None:
         print(f"[demo] no inspection report: {err}", file=output, flush=True)
         return
     print(f"[demo] inspection report: {pdf or html}", file=output, flush=True)
+
+
+def _final_trajectories(
+    node: Node, robots: list[str], output: TextIO
+) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Per robot, stamps and 4×4 camera poses of its SLAM trajectory as the run ends (``slam/trajectory``); a robot
+    whose SLAM does not answer is left out (its live poses stand in, and the output says so)."""
+    from fleetslam.msg.conversions import pose_matrix
+    from fleetslam.msg.typesys import get_type, ns_from_stamp
+
+    out = {}
+    request = get_type("fleetslam_msgs/srv/GetTrajectory_Request")()
+    for robot in robots:
+        client = node.create_client("fleetslam_msgs/srv/GetTrajectory", f"/{robot}/slam/trajectory")
+        try:
+            response = client.call(request, timeout=60.0)
+        except Exception as err:
+            print(f"[demo] {robot}: no final trajectory ({err}); its live poses stand in", file=output, flush=True)
+            continue
+        if not response.success or not response.trajectory.poses:
+            print(f"[demo] {robot}: no final trajectory ({response.message}); its live poses stand in",
+                  file=output, flush=True)  # fmt: skip
+            continue
+        poses = response.trajectory.poses
+        stamps = np.array([ns_from_stamp(p.header.stamp) / 1e9 for p in poses])
+        out[robot] = (stamps, np.stack([pose_matrix(p.pose) for p in poses]))
+        print(f"[demo] {robot}: final trajectory, {response.message}", file=output, flush=True)
+    return out
 
 
 def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:

@@ -164,33 +164,18 @@ class Monitor:
     def placements(self) -> dict[str, tuple[float, NDArray[np.float64]]]:
         """Per placed robot: seconds after the start when its SLAM placed it in the fleet frame, and its latest
         ``T_fleet_map``."""
-        from fleetslam.msg.conversions import transform_matrix
-        from fleetslam.msg.typesys import deserialize
-
         with self.lock:
             latest = dict(self._placements)
-        out = {}
-        for robot, (first, data) in latest.items():
-            try:
-                out[robot] = (first, transform_matrix(deserialize(data, FLEET_TRANSFORM.type).transform))
-            except Exception as err:  # a malformed one is reported, not fatal to the report
-                log.warning("%s: unreadable fleet transform: %s", robot, err)
-        return out
+        return {robot: (first, decoded[1]) for robot, (first, data) in latest.items()
+                if (decoded := _fleet_transform(robot, data)) is not None}  # fmt: skip
 
     def placement_stamps(self) -> dict[str, float]:
         """Per placed robot, the stamp (s) of its first ``slam/fleet_transform``: its poses stamped earlier were
         tracked before it was placed in the fleet frame."""
-        from fleetslam.msg.typesys import deserialize, ns_from_stamp
-
         with self.lock:
             first = dict(self._placed_stamps)
-        out = {}
-        for robot, data in first.items():
-            try:
-                out[robot] = ns_from_stamp(deserialize(data, FLEET_TRANSFORM.type).header.stamp) / 1e9
-            except Exception as err:  # as in placements()
-                log.warning("%s: unreadable fleet transform: %s", robot, err)
-        return out
+        return {robot: decoded[0] for robot, data in first.items()
+                if (decoded := _fleet_transform(robot, data)) is not None}  # fmt: skip
 
     def trajectories(self) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """Stamps and 4×4 poses per ``<robot>/slam``."""
@@ -214,6 +199,20 @@ class Monitor:
         self.node.destroy()
         if self.writer is not None:
             self.writer.close()
+
+
+def _fleet_transform(robot: str, data: bytes) -> tuple[float, NDArray[np.float64]] | None:
+    """A robot's ``slam/fleet_transform``: its stamp (s) and ``T_fleet_map``; None (logged) when malformed: not fatal
+    to the report."""
+    from fleetslam.msg.conversions import transform_matrix
+    from fleetslam.msg.typesys import deserialize, ns_from_stamp
+
+    try:
+        msg = deserialize(data, FLEET_TRANSFORM.type)
+        return ns_from_stamp(msg.header.stamp) / 1e9, transform_matrix(msg.transform)
+    except Exception as err:
+        log.warning("%s: unreadable fleet transform: %s", robot, err)
+        return None
 
 
 def slam_values(msg: Any) -> dict[str, str] | None:

@@ -143,8 +143,11 @@ def sim_processes(
                                      argv=fleetslam_argv("slam", "node", "--set", f"peers={peers}", "--set", maps_dir),
                                      environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
                                      restart=RestartPolicy()))  # fmt: skip
+        # The map follows the fleet back-end's corrections of its keyframes (the back-end runs below): the fleet
+        # map lands it by one rigid transform, and a map bent by the robot's own drift would land with doubled walls.
         processes.append(ProcessSpec(label=f"{robot}/mapping", host="localhost",
-                                     argv=fleetslam_argv("map", "node", "--set", maps_dir),
+                                     argv=fleetslam_argv("map", "node", "--set", maps_dir,
+                                                         "--set", "follow_fleet=true"),
                                      environment={**agent_env, **ONE_NUMBA_THREAD},
                                      restart=RestartPolicy(), niceness=MAP_NICENESS))  # fmt: skip
     fleet_config = out_dir / "fleet_map.yaml"

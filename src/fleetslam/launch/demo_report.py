@@ -30,7 +30,11 @@ class DemoResult:
     rows: list[StatsRow]
     history: list[dict[str, Any]] = field(default_factory=list)
     ate: dict[str, float] = field(default_factory=dict)
-    """ATE RMSE (m) per robot, SLAM against ground truth."""
+    """ATE RMSE (m) per robot: its SLAM trajectory as the run ended (``slam/trajectory``: every processed frame on its
+    keyframe's optimised pose, as an offline run's) against ground truth."""
+    ate_live: dict[str, float] = field(default_factory=dict)
+    """ATE RMSE (m) per robot of its poses as SLAM published them during the run (``slam/odom``: each frame's pose
+    when it was tracked, before later loop closures corrected it)."""
     plots: list[Path | None] = field(default_factory=list)
     """Extra figures for the report."""
     processes: list[ProcessUsage] = field(default_factory=list)
@@ -148,19 +152,27 @@ def maps_section(maps: Sequence[Path]) -> Section | None:
     return Section("Maps", table)
 
 
-def slam_section(slam: Mapping[str, Mapping[str, str] | None], ate: Mapping[str, float]) -> Section | None:
-    """Per robot its latest SLAM diagnostics and its ATE; "—" where a robot has no figure (None without robots)."""
-    robots = sorted(set(slam) | set(ate))
+def slam_section(
+    slam: Mapping[str, Mapping[str, str] | None], ate: Mapping[str, float], ate_live: Mapping[str, float] | None = None
+) -> Section | None:
+    """Per robot its latest SLAM diagnostics and its ATE, of the final and of the live trajectory; "—" where a robot
+    has no figure (None without robots)."""
+    live = ate_live or {}
+    robots = sorted(set(slam) | set(ate) | set(live))
     if not robots:
         return None
-    table = Table(("robot", *(c for c, _ in SLAM_COLUMNS), "ATE RMSE (m)"), (False, *[True] * (len(SLAM_COLUMNS) + 1)))
+    columns = (*(c for c, _ in SLAM_COLUMNS), "ATE RMSE (m), final", "ATE RMSE (m), live")
+    table = Table(("robot", *columns), (False, *[True] * len(columns)))
     for robot in robots:
         values = slam.get(robot) or {}
         cells = [values.get(key, MISSING) for _, key in SLAM_COLUMNS]
-        cells.append(f"{ate[robot]:.3f}" if robot in ate else MISSING)
+        cells += [f"{figures[robot]:.3f}" if robot in figures else MISSING for figures in (ate, live)]
         table.rows.append([robot, *cells])
-    text = ("Counts since the SLAM node started (its latest `slam/diagnostics`); ATE: SLAM against ground truth, "
-            "SE(3)-aligned, translation RMSE.")  # fmt: skip
+    text = ("Counts since the SLAM node started (its latest `slam/diagnostics`). ATE: SLAM against ground truth, "
+            "SE(3)-aligned, translation RMSE; *final*: every processed frame on its keyframe's pose after the graph's "
+            "last optimisation (`slam/trajectory` as the run ended: `trajectories/`, the figure an offline run and the "
+            "benchmarks give); *live*: each pose as SLAM published it when the frame was tracked, before later loop "
+            "closures corrected it (`slam/odom`: `trajectories_live/`).")  # fmt: skip
     return Section("SLAM per robot", table, text)
 
 
@@ -329,7 +341,7 @@ def build_report(result: DemoResult, figures: Sequence[Path | None] = ()) -> Rep
     """The report of a run: its tables (maps read from ``out_dir/maps/*.bt``) and ``figures`` (None: left out)."""
     maps_dir = result.out_dir / "maps"
     maps = sorted(maps_dir.glob("*.bt")) if maps_dir.is_dir() else []
-    sections = [maps_section(maps), slam_section(result.slam, result.ate), fleet_section(result),
+    sections = [maps_section(maps), slam_section(result.slam, result.ate, result.ate_live), fleet_section(result),
                 fleet_trajectory_section(result), pairs_section(result), exchange_section(result),
                 process_section(result.processes), agents_section(result)]  # fmt: skip
     return Report(
@@ -390,26 +402,31 @@ def write_trajectories(
     robots: list[str],
     out_dir: Path,
     extrinsics: dict[str, Any],
-) -> dict[str, float]:
-    """TUM files of every robot's SLAM and ground-truth camera trajectory, and the ATE (m) of each."""
+) -> dict[str, dict[str, float]]:
+    """TUM files of every robot's trajectories, ``<robot>/<kind>`` → folder: ``slam`` (final) → ``trajectories/``,
+    ``live`` → ``trajectories_live/``, ``truth`` (base_link, moved to the camera by ``extrinsics``) →
+    ``ground_truth/``; and the ATE (m) of the estimated ones per kind and robot."""
     from fleetslam.trajectory import Trajectory, write_tum
 
-    ate: dict[str, float] = {}
+    ate: dict[str, dict[str, float]] = {"slam": {}, "live": {}}
     for robot in robots:
         tracks = {}
-        for kind, folder in (("slam", "trajectories"), ("truth", "ground_truth")):
+        for kind, folder in (("slam", "trajectories"), ("live", "trajectories_live"), ("truth", "ground_truth")):
+            if kind == "live" and f"{robot}/live" not in trajectories:
+                continue
             stamps, poses = trajectories.get(f"{robot}/{kind}", (np.zeros(0), np.zeros((0, 4, 4))))
             if kind == "truth" and robot in extrinsics:  # base_link ground truth → camera optical frame
                 poses = poses @ extrinsics[robot]
             tracks[kind] = Trajectory.from_lists(stamps.tolist(), list(poses))
             write_tum(out_dir / folder / f"{robot}.txt", tracks[kind])
-        if len(tracks["slam"]) >= 3 and len(tracks["truth"]) >= 3:
-            try:
-                from fleetslam.eval import ape
+        for kind in ("slam", "live"):
+            if kind in tracks and len(tracks[kind]) >= 3 and len(tracks["truth"]) >= 3:
+                try:
+                    from fleetslam.eval import ape
 
-                ate[robot] = float(ape(tracks["truth"], tracks["slam"], align=True, max_diff=0.1).rmse)
-            except Exception as err:
-                log.warning("ATE of %s: %s", robot, err)
+                    ate[kind][robot] = float(ape(tracks["truth"], tracks[kind], align=True, max_diff=0.1).rmse)
+                except Exception as err:
+                    log.warning("ATE of %s (%s): %s", robot, kind, err)
     return ate
 
 

@@ -181,10 +181,11 @@ class KeyframeMapper:
             scan.integrated_pose, scan.box = previous.integrated_pose, previous.box
         self.scans[keyframe_id] = scan
 
-    def update_poses(self, poses: dict[int, NDArray[np.floating]]) -> int:
+    def update_poses(self, poses: dict[int, NDArray[np.floating]], *, tolerance: float | None = None) -> int:
         """New (optimised) poses; returns how many integrated keyframes now wait to be integrated again because
-        their scan moved beyond the tolerance (since it was integrated). Raises ValueError naming the keyframes
-        whose pose is not a finite rigid transform inside the map, before changing anything."""
+        their scan moved beyond the tolerance (since it was integrated; ``tolerance`` instead of the mapper's for
+        these poses). Raises ValueError naming the keyframes whose pose is not a finite rigid transform inside the
+        map, before changing anything."""
         bad = [i for i, pose in poses.items() if not self._pose_is_valid(pose)]
         if bad:
             raise ValueError(f"graph poses of keyframes {bad[:10]} are not finite rigid transforms inside the map")
@@ -203,7 +204,8 @@ class KeyframeMapper:
                 np.stack([self.scans[i].pose for i in integrated]),
                 np.array([self.scans[i].reach for i in integrated]),
             )
-            for i, far in zip(integrated, (moved > self.tolerance).tolist(), strict=True):
+            limit = self.tolerance if tolerance is None else tolerance
+            for i, far in zip(integrated, (moved > limit).tolist(), strict=True):
                 if far:
                     self._moved.setdefault(i, None)
                 elif i in self._moved and self._moved[i] is None:  # moved back before it was integrated again

@@ -9,6 +9,13 @@ coloured by height), ``map/grid`` (OccupancyGrid over a height band) and ``map/o
 binary) — as octomap_server, each only while someone subscribes to it (a subscriber that comes later gets the
 current map at the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx`` (ClearBbx), ``map/reset``
 (Trigger). The work is done by :class:`~fleetslam.mapping.keyframe_mapper.KeyframeMapper`, incrementally.
+
+With ``follow_fleet`` it also subscribes its agent's ``fleet_path`` and ``/fleet/placements`` (the fleet back-end's
+corrected keyframes and placement; the newest of each decoded at the next tick) and integrates each keyframe where
+the back-end put it, expressed in the agent's own map frame (:mod:`fleetslam.mapping.fleet_correction`); keyframes
+the back-end does not know yet follow the agent's own graph from the newest corrected one. Keyframes that moved
+more than ``fleet_move_tolerance`` are integrated again as after the agent's own optimisation (at most every
+``reintegrate_period``).
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -29,12 +37,14 @@ from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
+from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
+from fleetslam.mapping.fleet_correction import FleetCorrection, stamp_key
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
 from fleetslam.middleware import Node, Publisher
-from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix
+from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix, transform_matrix
 from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp, serialize
 from fleetslam.save_paths import save_path
 
@@ -69,6 +79,24 @@ class MappingNodeConfig(ConfigModel):
     directory). Requests name a plain file inside it, never a path."""
     save_path: str = "map.bt"
     """Default file name of the map/save service, inside ``maps_dir`` (``.bt`` binary or ``.ot`` full octree)."""
+    follow_fleet: bool = False
+    """Integrate the keyframes where the fleet back-end's joint optimisation put them (``fleet_path`` and
+    ``/fleet/placements``, expressed in this agent's map frame; see :mod:`fleetslam.mapping.fleet_correction`)
+    instead of where the agent's own graph has them, so that the fleet map, which lands this map by one rigid
+    transform, has no doubled walls where the agent's own graph is bent. Keyframes the back-end has not corrected
+    (newer, or the link to it cut) follow the agent's own graph from the newest corrected one; with no back-end
+    nothing changes. Off by default: the map then no longer agrees with the agent's own localisation (near the robot
+    it is shifted by the back-end's correction there), and subscribing makes the back-end send the agent its whole
+    corrected path (~80 B per keyframe) whenever it changes."""
+    fleet_move_tolerance: float = Field(default=0.05, ge=0)
+    """With ``follow_fleet``: a keyframe is integrated again only when the back-end's corrections (or its own graph)
+    moved its scan more than this (m, bound on any of its points) since it was integrated; one voxel by default,
+    twice the mapper's own tolerance: every solve of the back-end nudges most keyframes by centimetres (a new
+    closure bends the chains a little), and re-integrating for each nudge rebuilt the map every few seconds."""
+    fleet_placement_tolerance: float = Field(default=0.05, gt=0)
+    """With ``follow_fleet``: a placement of this agent by the back-end that moved less than this (m, and a tenth of
+    it in radians) from the one followed is not taken (every keyframe would move with it); keep it equal to the
+    fleet map's ``placement_tolerance``, which re-lands the map by the same rule."""
 
 
 def decode_depth(msg: Any) -> np.ndarray | None:
@@ -138,10 +166,38 @@ class MappingNode:
         keyframes, graph = topics.KEYFRAMES, topics.GRAPH_UPDATES
         node.create_subscription(keyframes.type, keyframes.name, self.on_keyframe, keyframes.qos(depth=50))
         node.create_subscription(graph.type, graph.name, self.on_graph_data, graph.qos(depth=50), raw=True)
+        self.fleet = FleetCorrection(placement_tolerance=self.config.fleet_placement_tolerance)
+        """The fleet back-end's corrections of this agent's keyframes (followed with ``follow_fleet``)."""
+        self._fleet_inbox: dict[str, bytes] = {}
+        """The newest ``placements`` and ``path`` message received since the last tick (decoded at the tick)."""
+        self._fleet_changed = False
+        """The graph or the corrections changed since the mapper was last handed the corrected poses."""
+        self._chain = np.eye(4)
+        """Places a keyframe newer than the graph: ``chain · own pose`` (see :func:`corrected_poses`)."""
+        self._handed: dict[int, NDArray[np.floating]] = {}
+        """While following the fleet: the pose each keyframe was last handed to the mapper with."""
+        self._handed_epoch = 0
+        self._handed_any = False
+        self._fleet_child = ""
+        if self.config.follow_fleet:
+            self._follow_fleet(node)
         node.create_service("fleetslam_msgs/srv/SaveMap", "map/save", self.on_save)
         node.create_service("fleetslam_msgs/srv/ClearBbx", "map/clear_bbx", self.on_clear_bbx)
         node.create_service("std_srvs/srv/Trigger", "map/reset", self.on_reset)
         node.create_timer(1.0 / self.config.publish_rate, self.on_timer)
+
+    def _follow_fleet(self, node: Node) -> None:
+        agent = node.namespace.strip("/")
+        if not agent or "/" in agent:
+            log.warning("follow_fleet: the node's namespace %r names no agent; the map follows its own graph",
+                        node.namespace)  # fmt: skip
+            return
+        self._fleet_child = f"{agent}/{self.config.frame_id}"
+        path, placements = topics.FLEET_PATH, topics.FLEET_PLACEMENTS
+        node.create_subscription(path.type, path.name, partial(self._on_fleet_data, "path"), path.qos(depth=1),
+                                 raw=True)  # fmt: skip
+        node.create_subscription(placements.type, placements.name, partial(self._on_fleet_data, "placements"),
+                                 placements.qos(depth=1), raw=True)  # fmt: skip
 
     # -- inputs -------------------------------------------------------------------------------------------------
     def on_keyframe(self, msg: Any) -> None:
@@ -154,7 +210,10 @@ class MappingNode:
             max_depth=self.config.max_depth,
         )  # fmt: skip
         try:
-            self.mapper.add_keyframe(int(msg.id), points, pose_matrix(msg.pose))
+            # Following the fleet: a keyframe newer than the graph continues from the newest corrected one (its
+            # graph pose, handed to the mapper before it came, wins as always).
+            pose = pose_matrix(msg.pose)
+            self.mapper.add_keyframe(int(msg.id), points, self._chain @ pose if self.fleet.active else pose)
         except ValueError as err:  # a NaN position, a zero quaternion: this keyframe is left out, the map goes on
             self._reject(f"keyframe {msg.id} from {msg.agent!r}", err)
 
@@ -180,8 +239,59 @@ class MappingNode:
         # In order: this update's poses; the whole graph, or deltas kept while waiting for it: every pose.
         in_order = not update.full and self.graph.sequence == update.sequence == before + 1
         changed = update.poses if in_order else self.graph.poses
-        if changed:
+        if self.fleet.active:
+            self._fleet_changed = True  # every pose follows the corrections: handed over at the end of the tick
+        elif changed:
             self.mapper.update_poses(dict(changed))
+
+    def _on_fleet_data(self, kind: str, data: bytes) -> None:
+        """Keep the back-end's newest placements or path for the next tick (older ones are superseded)."""
+        with self._graph_lock:
+            self._fleet_inbox[kind] = data
+
+    def on_fleet(self, kind: str, msg: Any) -> None:
+        """Take the back-end's placements (``tf2_msgs/TFMessage``) or this agent's corrected path
+        (``nav_msgs/Path``); a malformed one raises ValueError and changes nothing."""
+        if kind == "placements":
+            for transform in msg.transforms:
+                if str(transform.child_frame_id) == self._fleet_child:
+                    pose = transform_matrix(transform.transform)
+                    if self.fleet.set_placement(pose, str(transform.header.frame_id)):
+                        self._fleet_changed = True
+            return  # an agent the back-end no longer places keeps its last placement: nothing waits for it
+        poses = msg.poses
+        values = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z, p.pose.orientation.x,
+                            p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w) for p in poses],
+                          dtype=np.float64).reshape(-1, 7)  # fmt: skip
+        if not np.isfinite(values).all() or (np.linalg.norm(values[:, 3:], axis=1) < 1e-6).any():
+            raise ValueError("a pose is not finite, or its quaternion is zero")
+        matrices = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
+        if len(values):
+            matrices[:, :3, :3] = quat_to_matrix(values[:, 3:])
+            matrices[:, :3, 3] = values[:, :3]
+        stamps = np.array([ns_from_stamp(p.header.stamp) for p in poses], dtype=np.int64)
+        self.fleet.set_path(stamps, matrices, str(msg.header.frame_id))
+        self._fleet_changed = True
+
+    def _hand_corrected_poses(self) -> None:
+        """Hand the mapper the poses (following the corrections) that differ from those it was last handed."""
+        self._fleet_changed = False
+        if self.graph.epoch != self._handed_epoch:  # SLAM restarted: its keyframe ids mean other keyframes
+            self._handed, self._handed_epoch = {}, self.graph.epoch
+        if not self._handed_any:
+            self._handed_any = True
+            corrected = sum(stamp_key(t) in self.fleet.corrected for t in self.graph.stamps.values())
+            log.info("following the fleet back-end: %d of %d keyframes corrected, the others follow from them",
+                     corrected, len(self.graph.poses))  # fmt: skip
+        poses, self._chain = self.fleet.poses(self.graph.poses, self.graph.stamps)
+        known = [i for i in poses if i in self._handed]
+        changed: dict[int, NDArray[np.floating]] = {i: pose for i, pose in poses.items() if i not in self._handed}
+        if known:
+            same = (np.stack([poses[i] for i in known]) == np.stack([self._handed[i] for i in known])).all(axis=(1, 2))
+            changed.update({i: poses[i] for i, keep in zip(known, same.tolist(), strict=True) if not keep})
+        if changed:
+            self.mapper.update_poses(changed, tolerance=self.config.fleet_move_tolerance)
+            self._handed.update(changed)
 
     def _request_graph(self) -> None:
         """SLAM's whole graph (``graph/full``), fetched off the executor; applied at a later tick."""
@@ -204,11 +314,24 @@ class MappingNode:
     def on_timer(self) -> None:
         with self._graph_lock:
             pending, self._graph_updates = self._graph_updates, []
+            fleet, self._fleet_inbox = self._fleet_inbox, {}
         for data in pending:
             try:
                 self.on_graph(deserialize(data, "fleetslam_msgs/msg/KeyframeGraph"))
             except (MessageError, ValueError, TypeError) as err:
                 self._reject("graph update", err)
+        for kind, type_name in (("placements", "tf2_msgs/msg/TFMessage"), ("path", "nav_msgs/msg/Path")):
+            if kind not in fleet:  # (the placement first: the path must be in its frame)
+                continue
+            try:
+                self.on_fleet(kind, deserialize(fleet[kind], type_name))
+            except (MessageError, ValueError, TypeError) as err:
+                self._reject(f"fleet {kind}", err)
+        if self._fleet_changed and self.fleet.active:
+            try:
+                self._hand_corrected_poses()
+            except ValueError as err:  # a correction outside the map: the keyframes keep their poses
+                self._reject("fleet correction", err)
         if self.mapper.pending:
             self._integrate(moved=time.monotonic() >= self._next_reintegration)
         if self._pacer.due():
@@ -342,6 +465,7 @@ class MappingNode:
     def on_reset(self, request: Any) -> Any:
         self.mapper.reset()
         self.graph = GraphMirror[Any]()
+        self._handed = {}
         self._version += 1
         self.publish()
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="map reset")

@@ -22,7 +22,6 @@ from typing import Any, TextIO
 
 from fleetslam import topics
 from fleetslam.drivers.node import OPTICAL_FRAME, image_messages
-from fleetslam.geometry import pose_to_quat
 from fleetslam.middleware import Context, Node, Publisher
 from fleetslam.msg.conversions import camera_info_msg, odometry_msg, pose_msg, transform_msg
 from fleetslam.msg.typesys import get_type, stamp_from_ns
@@ -30,6 +29,7 @@ from fleetslam.robot.autopilot import Autopilot, get_route
 from fleetslam.robot.node import BaseControllerNode
 from fleetslam.sim.config import SimConfig
 from fleetslam.sim.plant import Plant
+from fleetslam.trajectory import tum_line
 
 log = logging.getLogger(__name__)
 
@@ -146,8 +146,7 @@ class SimNode:
             truth = pose_msg(base_pose)
             truth_file = self._truth_files.get(name)
             if truth_file is not None:
-                t, q = pose_to_quat(base_pose)
-                truth_file.write(f"{now:.6f} {' '.join(f'{v:.9f}' for v in (*t, *q))}\n")
+                truth_file.write(tum_line(now, base_pose, digits=9))
             io.truth_pub.publish(
                 odometry_msg(truth, frame_id=WORLD_FRAME, child_frame_id="base_link", stamp_ns=stamp_ns,
                              linear=linear, angular=angular)

@@ -128,6 +128,17 @@ class OdometryConfig(ConfigModel):
     enough to track the next frames."""
     window_keyframes: int = Field(default=6, ge=1)
     """Keyframes bundle-adjusted together (poses and landmarks) at each new keyframe; 1 disables the adjustment."""
+    window_fixed_keyframes: int = Field(default=0, ge=0)
+    """Keyframes that left the window kept in its adjustment, fixed, where they observe its landmarks (ORB-SLAM's
+    fixed covisible keyframes): the landmarks stay tied to where earlier keyframes saw them, so the window's
+    oldest keyframe is not the only anchor. 0 = off (the default). Without wheels, the window's oldest keyframe
+    is all that holds it, and at 320×240 on the procedural hall (30-60 tracked landmarks, a keyframe every few
+    frames) the heading random-walks by 0.2° per keyframe. Measured with 6 (benchmarks/slam_matrix.py --set
+    odometry.window_fixed_keyframes=6), procedural hall, 320×240, hand-held: survey 3.5/3.2/7.4/4.5 →
+    2.5/2.7/3.9/3.0 cm at 5/10/15/30 Hz, figure eight 3.2/2.1/3.0/5.5 → 3.8/2.6/3.1/4.9 cm (4 of the 8 cells
+    within 3 cm instead of 2), loop_revisit 2.7/1.8/2.4 → 2.9/1.8/2.1 cm at 5/10/30 Hz; 640×480 hand-held survey
+    2.2/2.9 → 2.5/1.7 cm at 5/10 Hz; ground robot, 320×240: survey at 5 Hz 1.09 → 1.27 cm, figure eight at 10 Hz
+    1.03 → 1.27 cm, loop_revisit at 5 Hz 1.27 → 1.50 cm. Not the default until the whole matrix is run."""
     window_iterations: int = Field(default=5, ge=1)
     """Levenberg–Marquardt iterations of the window's adjustment."""
     pixel_std: float = Field(default=1.0, gt=0.0)
@@ -145,6 +156,19 @@ class OdometryConfig(ConfigModel):
     holds the heading where measured points are few."""
     min_parallax_deg: float = Field(default=1.0, gt=0.0)
     """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
+    triangulation_keyframes: int = Field(default=1, ge=1)
+    """How many of the window's newest keyframes a new keyframe's keypoints without depth are searched in for
+    triangulation, the oldest of them first (the longest baseline, the widest angle; ORB-SLAM searches its
+    covisible keyframes). 1 = the previous keyframe only (the default). Ahead of a camera moving forward, far
+    texture is seen under a few tenths of a degree from the previous keyframe, 25 cm back, and goes
+    untriangulated. Searching the whole window (6), measured on the matrix (benchmarks/slam_matrix.py --set
+    odometry.triangulation_keyframes=6), procedural hall, hand-held: at 320×240 the odometry drifts less (survey
+    3.5/3.2/7.4/4.5 → 1.7/3.5/3.6/3.1 cm at 5/10/15/30 Hz; figure-eight odometry 7.5/9.6/6.6/6.5 →
+    4.9/6.1/6.2/7.1 cm), but with more landmarks tracked fewer keyframes are made (222 → 130 at 5 Hz), fewer loops
+    close on the figure eight (4/6/10/8 → 0/1/1/1) and its ATE gets worse (3.2/2.1/3.0/5.5 → 4.9/3.1/2.9/6.0 cm);
+    at 640×480 the survey goes 2.2/2.9 → 2.9/2.6 cm at 5/10 Hz and tracking at 5 Hz, where most frames are
+    keyframes, costs 19 → 23 ms of CPU per frame. Together with ``window_fixed_keyframes=6`` it was worse than
+    that alone (hand-held 320×240: none of the 8 cells within 3 cm). Hence not the default."""
     surface_samples: int = Field(default=3000, ge=0)
     """Depth samples per frame for the point-to-plane term against the newest keyframe's surface, refined together
     with the features (the hybrid RGB-D odometry of DVO or Open3D; :mod:`~fleetslam.slam.surface_alignment`):

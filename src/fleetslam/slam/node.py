@@ -16,7 +16,8 @@ closure all poses are re-sent, never points). After every processed frame, ``sla
 (diagnostic_msgs/DiagnosticArray, one status named ``slam``): frames received, processed and dropped,
 relocalisations, loop closures, lost and coasting frames, keyframes, and the frame's timings (odometry, steps,
 latency from the pair's arrival to its pose). Services: ``slam/save_map`` (SaveMap: map.db), ``slam/reset``
-(Trigger), ``slam/pause`` (SetBool), ``graph/full`` (GetGraph) and ``keyframe_summaries/catch_up``
+(Trigger), ``slam/trajectory`` (GetTrajectory: every processed frame on its keyframe after a full optimisation,
+as an offline run ends), ``slam/pause`` (SetBool), ``graph/full`` (GetGraph) and ``keyframe_summaries/catch_up``
 (GetKeyframeSummaries: the summaries of this agent's newest keyframes, for a peer that missed them; a thread asks
 the peers for theirs the same way, see :mod:`fleetslam.fusion.summary_catchup`).
 """
@@ -68,6 +69,8 @@ log = logging.getLogger(__name__)
 CATCH_UP_SERVICE = "keyframe_summaries/catch_up"
 """The service that answers a peer's catch-up requests (in the agent's namespace)."""
 CATCH_UP_TYPE = "fleetslam_msgs/srv/GetKeyframeSummaries"
+TRAJECTORY_TYPE = "fleetslam_msgs/srv/GetTrajectory"
+"""``slam/trajectory``: the whole trajectory as a run ends."""
 
 
 class SlamNodeConfig(ConfigModel):
@@ -226,6 +229,7 @@ class SlamNode:
         self._summary_clients = {peer: node.create_client(CATCH_UP_TYPE, f"/{peer}/{CATCH_UP_SERVICE}")
                                  for peer in self._graph_clients}  # fmt: skip
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
+        node.create_service(TRAJECTORY_TYPE, "slam/trajectory", self.on_trajectory)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
         node.create_service("std_srvs/srv/SetBool", "slam/pause", self.on_pause)
         self._stop = threading.Event()
@@ -782,6 +786,25 @@ class SlamNode:
         if self.pipeline is None or not self.pipeline.save_map(path):
             return response(success=False, message="nothing to save yet (no camera frames)", path=str(path))
         return response(success=True, message=f"{len(self.pipeline.keyframe_stamps)} keyframes", path=str(path))
+
+    def on_trajectory(self, request: Any) -> Any:
+        """Every processed frame on its keyframe's pose after a full optimisation (what an offline run returns)."""
+        with self._lock:
+            if self.pipeline is None or not self.pipeline.keyframe_stamps:
+                refusal = {"success": False, "message": "no trajectory yet (no camera frames)"}
+                return message_from_dict(TRAJECTORY_TYPE + "_Response", refusal)
+            result = self.pipeline.result()
+        trajectory = result.trajectory
+        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
+        poses = [
+            pose_stamped(header=header(self.config.map_frame, round(float(t) * 1e9)), pose=p)
+            for t, p in zip(trajectory.stamps, pose_msgs(list(trajectory.poses)), strict=True)
+        ]
+        path = get_type("nav_msgs/msg/Path")(header=header(self.config.map_frame, time.time_ns()), poses=poses)
+        keyframes = len(result.keyframes)
+        return get_type(TRAJECTORY_TYPE + "_Response")(
+            success=True, message=f"{len(poses)} frames on {keyframes} keyframes", trajectory=path, keyframes=keyframes
+        )
 
     def on_reset(self, request: Any) -> Any:
         with self._lock:

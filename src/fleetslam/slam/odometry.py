@@ -207,6 +207,8 @@ class VisualOdometry:
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
         self.window: deque[_WindowKeyframe] = deque(maxlen=config.window_keyframes)
+        self._retired: deque[_WindowKeyframe] = deque(maxlen=config.window_fixed_keyframes or 1)
+        """Keyframes that left the window, newest last: held fixed in its adjustment where they share landmarks."""
         self.pose = np.eye(4)
         self._velocity = np.eye(4)
         """Motion of the last frame, ``T_previous_current``."""
@@ -219,7 +221,8 @@ class VisualOdometry:
         self._frame_interval = 1.0 / 30.0
         self._coasted = 0.0
         """Distance (m) followed on the wheels since the map last tracked."""
-        self._candidates: _Candidates | None = None
+        self._candidates: deque[_Candidates] = deque(maxlen=config.window_keyframes)
+        """Keypoints without depth of the window's keyframes, oldest first, waiting to be triangulated."""
         self._lost_frames = 0
         self._adjustment_pending = False
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
@@ -514,6 +517,8 @@ class VisualOdometry:
         unmeasured[tracked] = False
         far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
         observed = np.concatenate([tracked, new_index, far_index])
+        if len(self.window) == self.window.maxlen and self.config.window_fixed_keyframes:
+            self._retired.append(self.window[0])
         self.window.append(
             _WindowKeyframe(
                 pose=pose.copy(),
@@ -527,10 +532,10 @@ class VisualOdometry:
             )
         )
         feats = frame.features
-        self._candidates = _Candidates(
+        self._candidates.append(_Candidates(
             self.window[-1], feats.keypoints[leftover].astype(np.float64), feats.descriptors[leftover],
             feats.scales[leftover].astype(np.float64),
-        )  # fmt: skip
+        ))  # fmt: skip
         # The window's adjustment is local mapping: it runs after the frame's pose is out (local_mapping()).
         self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
@@ -588,49 +593,66 @@ class VisualOdometry:
     def _triangulate(
         self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
     ) -> tuple[NDArray[np.intp], NDArray[np.int64], NDArray[np.intp]]:
-        """Landmarks from this keyframe's keypoints without depth matched to the last keyframe's along epipolar
-        segments (see :mod:`~fleetslam.slam.triangulation`); the last keyframe's window entry gains their
-        observations. Returns this frame's keypoint indices, the new landmark ids and the unmeasured keypoints
-        left over (the next keyframe's candidates)."""
-        candidates, self._candidates = self._candidates, None
+        """Landmarks from this keyframe's keypoints without depth matched along epipolar segments (see
+        :mod:`~fleetslam.slam.triangulation`) to the newest ``triangulation_keyframes`` keyframes of the window, the
+        oldest of them first: as ORB-SLAM triangulates with its covisible keyframes, a longer baseline gives a wider
+        angle, so far texture ahead of a camera moving forward (a few tenths of a degree between neighbouring
+        keyframes) is triangulated once the keyframes searched span enough of the path. Each keyframe's entry gains
+        its observations of the landmarks it helped make. Returns this frame's keypoint indices, the new landmark
+        ids and the unmeasured keypoints left over (this keyframe's candidates for the next ones)."""
         feats = frame.features
-        found: tuple[NDArray[np.intp], NDArray[np.int64]] = (np.zeros(0, np.intp), np.zeros(0, np.int64))
-        if (
-            self.config.triangulate
-            and candidates is not None
-            and len(self.window)
-            and self.window[-1] is candidates.keyframe
-            and np.linalg.norm(pose[:3, 3] - candidates.keyframe.pose[:3, 3]) >= 0.02
-        ):
-            result = match_and_triangulate(
-                candidates.keyframe.pose, candidates.pixels, candidates.descriptors,
-                pose, feats.keypoints[unmeasured], feats.descriptors[unmeasured], feats.scales[unmeasured], self._K,
-                near=0.5 * self.config.max_depth, far=10.0 * self.config.max_depth,
-                tolerance_px=2.0 * self.config.pixel_std * self._pixel_scale,
-                min_parallax_deg=self.config.min_parallax_deg,
-            )  # fmt: skip
-            if len(result.points):
+        found_index: list[NDArray[np.intp]] = []
+        found_ids: list[NDArray[np.int64]] = []
+        if self.config.triangulate:
+            window = {id(kf) for kf in self.window}
+            for candidates in list(self._candidates)[-self.config.triangulation_keyframes :]:
+                previous = candidates.keyframe
+                if (
+                    id(previous) not in window
+                    or len(candidates.pixels) == 0
+                    or len(unmeasured) == 0
+                    or np.linalg.norm(pose[:3, 3] - previous.pose[:3, 3]) < 0.02
+                ):
+                    continue
+                result = match_and_triangulate(
+                    previous.pose, candidates.pixels, candidates.descriptors,
+                    pose, feats.keypoints[unmeasured], feats.descriptors[unmeasured], feats.scales[unmeasured],
+                    self._K, near=0.5 * self.config.max_depth, far=10.0 * self.config.max_depth,
+                    tolerance_px=2.0 * self.config.pixel_std * self._pixel_scale,
+                    min_parallax_deg=self.config.min_parallax_deg,
+                )  # fmt: skip
+                if not len(result.points):
+                    continue
                 index = unmeasured[result.index_b]
                 ids = self.local_map.add(result.points, feats.descriptors[index], self.frames)
-                previous = candidates.keyframe
                 previous.landmarks = np.concatenate([previous.landmarks, ids])
                 previous.pixels = np.vstack([previous.pixels, candidates.pixels[result.index_a]])
                 previous.depths = np.concatenate([previous.depths, np.zeros(len(ids))])
                 previous.scales = np.concatenate([previous.scales, candidates.scales[result.index_a]])
-                found = (index, ids)
+                candidates.remove(result.index_a)
+                found_index.append(index)
+                found_ids.append(ids)
                 unmeasured = np.setdiff1d(unmeasured, index)
-        return found[0], found[1], unmeasured
+        if not found_index:
+            return np.zeros(0, np.intp), np.zeros(0, np.int64), unmeasured
+        return np.concatenate(found_index), np.concatenate(found_ids), unmeasured
 
     def _adjust_window(self) -> NDArray[np.float64]:
-        """Bundle-adjust the window (its oldest keyframe fixed) and write the result back; returns the newest
-        keyframe's pose."""
-        window = list(self.window)
+        """Bundle-adjust the window (its oldest keyframe fixed, and the ``window_fixed_keyframes`` that left it
+        before, fixed, observing the landmarks they share with it: ORB-SLAM's fixed covisible keyframes, which tie
+        the landmarks to where earlier keyframes saw them) and write the result back; returns the newest keyframe's
+        pose."""
+        retired = list(self._retired) if self.config.window_fixed_keyframes else []
+        window = retired + list(self.window)
+        fixed = np.arange(len(window)) <= len(retired)
         obs_pose = np.concatenate([np.full(len(kf.landmarks), k, np.intp) for k, kf in enumerate(window)])
         ids = np.concatenate([kf.landmarks for kf in window])
         _, found = self.local_map.rows(ids)
-        # Landmarks seen from one keyframe only constrain nothing but themselves.
+        # Landmarks seen from one keyframe only constrain nothing but themselves; those the window does not see
+        # are not its business.
         unique, counts = np.unique(ids[found], return_counts=True)
-        shared = np.isin(ids, unique[counts >= 2]) & found
+        in_window = np.concatenate([kf.landmarks for kf in self.window])
+        shared = np.isin(ids, unique[counts >= 2]) & np.isin(ids, in_window) & found
         if shared.sum() < self.config.min_inliers:
             return window[-1].pose
         landmark_ids, point_index = np.unique(ids[shared], return_inverse=True)
@@ -647,7 +669,7 @@ class VisualOdometry:
             pixels,
             depths,
             scales,
-            fixed=np.arange(len(window)) == 0,
+            fixed=fixed,
         )
         problem.priors = self._wheel_priors(window)
         result = bundle_adjust(problem, iterations=self.config.window_iterations)
@@ -743,7 +765,8 @@ class VisualOdometry:
         pose = self.constrain(pose)
         self.local_map.clear()
         self.window.clear()
-        self._candidates = None
+        self._retired.clear()
+        self._candidates.clear()
         self._coasted = 0.0
         self._lost_frames = 0
         self._keyframe_pose = None
@@ -760,7 +783,8 @@ class VisualOdometry:
         self._velocity = np.eye(4)
         self.local_map.clear()
         self.window.clear()
-        self._candidates = None
+        self._retired.clear()
+        self._candidates.clear()
         world = result.points3d.astype(np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
         ids = self.local_map.add(world, result.descriptors, self.frames)
         self.window.append(
@@ -836,6 +860,12 @@ class _Candidates:
     pixels: NDArray[np.float64]
     descriptors: NDArray[Any]
     scales: NDArray[np.float64]
+
+    def remove(self, rows: NDArray[np.intp]) -> None:
+        """Drop the candidates that became landmarks."""
+        keep = np.ones(len(self.pixels), bool)
+        keep[rows] = False
+        self.pixels, self.descriptors, self.scales = self.pixels[keep], self.descriptors[keep], self.scales[keep]
 
 
 @dataclass

@@ -26,7 +26,8 @@ import numpy as np
 
 from fleetslam.errors import FleetslamError
 from fleetslam.inspection.findings import FindingStore
-from fleetslam.inspection.report import _occupied, _placements, _trajectories, levelling_rotation
+from fleetslam.inspection.report import levelling_rotation
+from fleetslam.inspection.run_folder import occupied_centres, read_placements, read_trajectories
 from fleetslam.station.bridge import FLEET_AGENT, Emit, encode_image, robot_pose
 from fleetslam.station.findings import cdr_image_stamp, finding_json
 from fleetslam.station.protocol import TeleopGate, VoxelDiff
@@ -79,10 +80,10 @@ class SessionBridge:
         self.voxel_resolution = voxel_resolution
         self.gate = TeleopGate()
         self.findings = SessionFindings(run)
-        self.trajectories = _trajectories(run, "trajectories")
+        self.trajectories = read_trajectories(run, "trajectories")
         if not self.trajectories and not (run / "maps").is_dir():
             raise FleetslamError(f"--session {run}: no trajectories/ and no maps/: not a fleetslam run")
-        self.placements = {a: p for a, p in _placements(run).items() if a in self.trajectories}
+        self.placements = {a: p for a, p in read_placements(run).items() if a in self.trajectories}
         self._recorded = self._recorded_mountings()
         self.mountings = self._mountings()
         self._frames = self._index_frames()
@@ -153,7 +154,7 @@ class SessionBridge:
             if not path.is_file():
                 continue
             try:
-                centres = _occupied(path)
+                centres = occupied_centres(path)
             except (FleetslamError, OSError, ValueError) as err:
                 log.warning("%s: %s", path, err)
                 continue
