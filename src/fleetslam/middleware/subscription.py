@@ -225,8 +225,9 @@ class Subscription(Entity):
             )
 
     def _receive(self, sample: zenoh.Sample) -> None:
-        # Hot path (every sample, on the receive thread or Zenoh's): checks, statistics and queueing only. Deserialization waits
-        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding. Every line here
+        # Hot path (every sample, on the receive thread or Zenoh's): checks, statistics and queueing only.
+        # Deserialization waits for the executor, so samples that KEEP_LAST drops before their turn cost no
+        # decoding. Every line here
         # costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's table of layers).
         received = _time_ns()
         attachment = sample.attachment
