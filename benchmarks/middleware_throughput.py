@@ -20,8 +20,10 @@ for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetsla
 ``--layers N`` measures instead, in this one process, the thread CPU time per message of each layer at both ends
 (N messages of 64 B, N/50 of 1 MB, on a real sample through a router): serialization, ``publish_raw`` (sequence
 number, attachment, put) against raw Zenoh's put of the same payload to the same subscriber, the attachment, the
-payload's copy out of Zenoh, the statistics, deserialization, and the subscription's own entry point on Zenoh's
-thread and its executor's share (``inline`` too), against what the raw Zenoh peer's callback does. Thread CPU time
+payload's copy out of Zenoh, the statistics, deserialization, and the subscription's own entry point on the thread
+that receives (a KEEP_LAST subscription's receive thread, batched into the executor; KEEP_ALL's Zenoh callback
+thread, one hand-off per sample; ``inline``) and its executor's share, against what the raw Zenoh peer's callback
+does. Thread CPU time
 does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
 and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
 
@@ -439,8 +441,8 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
         rows["sub_payload_copy"] = _us_per_message(payload_copy, count)
         rows["sub_statistics"] = _us_per_message(statistics_update, count)  # with the receive time_ns()
         rows["sub_deserialize"] = _us_per_message(decode, count)
-        for inline in (False, True):
-            rows.update(_subscription_path(node, type_name, sample, count, inline=inline))
+        for path in ("batched", "executor", "inline"):
+            rows.update(_subscription_path(node, type_name, sample, count, path=path))
 
         def zenoh_callback(n: int) -> None:  # what the raw Zenoh peer's subscriber does with each sample
             for _ in range(n):
@@ -453,8 +455,12 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
     return rows
 
 
-def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, inline: bool) -> dict[str, float]:
-    """Thread CPU µs per sample of a subscription's entry point on Zenoh's thread and of its executor's share."""
+def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, path: str) -> dict[str, float]:
+    """Thread CPU µs per sample of a subscription's entry point on its receiving thread and of its executor's share.
+
+    ``batched``: a KEEP_LAST subscription (its receive thread's work per sample, drained by the executor in
+    batches); ``executor``: KEEP_ALL (Zenoh's callback thread, one executor post per sample); ``inline``.
+    """
     from fleetslam.middleware import QoSProfile
 
     delivered = [0]
@@ -462,9 +468,8 @@ def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, in
     def callback(msg: Any, info: Any) -> None:
         delivered[0] += 1
 
-    subscription = node.create_subscription(
-        type_name, "/bench/layers_copy", callback, QoSProfile(history="keep_all"), inline=inline
-    )
+    qos = QoSProfile(depth=count) if path == "batched" else QoSProfile(history="keep_all")
+    subscription = node.create_subscription(type_name, "/bench/layers_copy", callback, qos, inline=path == "inline")
     executor_cpu: list[int] = []
     marks = [threading.Event(), threading.Event()]
 
@@ -475,8 +480,8 @@ def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, in
     node.call_soon(lambda: mark(0))
     marks[0].wait(5.0)
     receive = subscription._on_sample
-    path = "inline" if inline else "executor"
-    rows = {f"sub_{path}_zenoh_thread": _us_per_message(lambda n: [receive(sample) for _ in range(n)], count)}
+    thread = "receive_thread" if path == "batched" else "zenoh_thread"
+    rows = {f"sub_{path}_{thread}": _us_per_message(lambda n: [receive(sample) for _ in range(n)], count)}
     node.call_soon(lambda: mark(1))
     marks[1].wait(120.0)
     rows[f"sub_{path}_executor_thread"] = round((executor_cpu[1] - executor_cpu[0]) / count / 1000, 3)

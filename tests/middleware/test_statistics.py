@@ -9,6 +9,7 @@ import zenoh
 
 from fleetslam.middleware import Context, Node, QoSProfile
 from fleetslam.middleware.statistics import RunningStats, SubscriptionStatistics
+from fleetslam.middleware.subscription import RECEIVE_RING_CAPACITY
 from fleetslam.middleware.wire import encode_attachment, topic_key
 from fleetslam.msg.typesys import get_type, ns_from_stamp, serialize
 
@@ -176,7 +177,12 @@ def test_a_flood_of_forged_gids_leaves_statistics_bounded_and_the_node_deliverin
     forged = 20_000
     for k in range(forged):
         raw_session.put(key, payload, attachment=encode_attachment(1, time.time_ns(), (k + 1).to_bytes(16, "big")))
-    assert wait_until(lambda: chatter.statistics.total_delivered == forged, 20.0), chatter.statistics.total_delivered
+    # KEEP_LAST: what the receive thread could not take in time, Zenoh's ring dropped before it was counted.
+    counted = -1
+    while counted != chatter.statistics.total_delivered:  # until the flood is taken in
+        counted = chatter.statistics.total_delivered
+        time.sleep(0.5)
+    assert RECEIVE_RING_CAPACITY <= counted <= forged
     assert chatter.statistics.publishers <= chatter.statistics.max_publishers
     assert len(chatter.publisher_types) <= chatter.statistics.max_publishers
     time.sleep(1.2)  # the flood's windows are reported
@@ -186,7 +192,7 @@ def test_a_flood_of_forged_gids_leaves_statistics_bounded_and_the_node_deliverin
             start = ns_from_stamp(report.window_start)
             flood_windows[start] = flood_windows.get(start, 0) + 1
     assert flood_windows and max(flood_windows.values()) <= chatter.statistics.max_publishers + 1, flood_windows
-    assert sum(r.delivered_msgs for r in reports if r.topic == "/c3po/chatter") == forged  # nothing lost
+    assert sum(r.delivered_msgs for r in reports if r.topic == "/c3po/chatter") == counted  # every count reported
     # After the flood, a genuine publisher is heard at its rate and gets its own report.
     before = len(received)
     for seq in range(1, 21):

@@ -52,6 +52,11 @@ def declare_with_callback(declare: Callable[[], T]) -> T:
     return declared
 
 
+def note_callback_thread(thread: threading.Thread) -> None:
+    """Count ``thread`` as one of the middleware's callback threads (not one of the program's own)."""
+    _callback_threads.add(thread)
+
+
 def join_at_exit(thread: threading.Thread) -> None:
     """Wait for ``thread`` (told to stop, still finishing its work) before the interpreter finalizes."""
     _finishing.add(thread)

@@ -10,9 +10,12 @@ Threading:
 - every node owns one executor thread (named ``executor:<fq node name>``). All of a node's callbacks
   (subscriptions, service handlers, timers, :meth:`Node.call_soon`) run on it, one at a time, in arrival order,
   so a node's state needs no locks. Callbacks of different nodes run concurrently.
-- samples are received, checked and counted in the statistics on Zenoh's threads, and queued per subscription
-  (KEEP_LAST depth: the oldest is dropped when the executor falls behind; KEEP_ALL: unbounded). They are
-  deserialized on the executor just before their callback, so samples dropped by KEEP_LAST cost no decoding.
+- samples are received, checked and counted in the statistics on a receive thread per volatile KEEP_LAST
+  subscription (fed by a Zenoh ring channel that drops the oldest when the thread falls behind, so Zenoh never
+  waits for Python; handed to the executor in batches) or on Zenoh's callback thread (KEEP_ALL, transient local),
+  and queued per subscription (KEEP_LAST depth: the oldest is dropped when the executor falls behind; KEEP_ALL:
+  unbounded). They are deserialized on the executor just before their callback, so samples dropped by KEEP_LAST
+  cost no decoding.
   A subscription created with ``inline=True`` skips the queue: its callback runs on Zenoh's thread (see
   :class:`Subscription`).
 - zero-copy: a received payload is copied once out of Zenoh; the message's numeric arrays are read-only NumPy

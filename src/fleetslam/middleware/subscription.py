@@ -1,4 +1,4 @@
-"""Subscriptions: samples checked and counted on Zenoh's threads, decoded and handed to the callback on the node's
+"""Subscriptions: samples checked and counted on a receive thread, decoded and handed to the callback on the node's
 executor (or inline, on Zenoh's thread); see :class:`Subscription`."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import zenoh
 from fleetslam.errors import MessageError
 from fleetslam.middleware.context import MAX_MESSAGE_BYTES
 from fleetslam.middleware.entity import Entity
-from fleetslam.middleware.lifetime import declare_with_callback
+from fleetslam.middleware.lifetime import declare_with_callback, note_callback_thread
 from fleetslam.middleware.statistics import SubscriptionStatistics
 from fleetslam.middleware.wire import (
     EntityKind,
@@ -61,6 +61,9 @@ _new_info = tuple.__new__
 """Makes a MessageInfo without the named tuple's Python-level ``__new__`` (a third of its cost)."""
 _time_ns = time.time_ns
 _deserialize = typesys.deserialize
+RECEIVE_RING_CAPACITY = 256
+"""Samples Zenoh keeps for a KEEP_LAST subscription's receive thread (the oldest dropped when it falls behind, never
+blocking Zenoh's thread); Zenoh's own channel size, the most a subscription held before it reached Python before."""
 _COPY_ON_EXECUTOR_BYTES = 1 << 16
 """Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
 
@@ -85,6 +88,14 @@ def _accepts_info(callback: Callable[..., Any]) -> bool:
 
 class Subscription(Entity):
     """Receives messages of a topic; the callback runs on the node's executor.
+
+    A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`)
+    on a receive thread of its own, which checks and counts them, queues them (KEEP_LAST ``depth``) and hands them
+    to the executor in batches: Zenoh's threads never wait for Python, and the executor wakes once per batch, not
+    once per sample. When the receive thread falls behind by more than the ring, Zenoh drops the oldest samples
+    before they are counted: /statistics sees them as sequence gaps (``dropped``), not as ``queue_overflows``.
+    KEEP_ALL and transient-local subscriptions get each sample from Zenoh's callback thread (a FIFO channel that
+    holds back reception when full) and hand it to the executor one by one.
 
     ``type_name=None`` subscribes to any type (the type is read from each sample's key); with ``raw=True`` the
     callback gets the CDR bytes instead of a message (for recorders and bridges).
@@ -129,6 +140,12 @@ class Subscription(Entity):
         )
         # One executor post per queued sample: the executor's queue stays bounded by the KEEP_LAST depth.
         self._pending_lock = threading.Lock()
+        self._drain_bound = self._drain
+        self._posted = False
+        """A drain of the queue is posted to the executor and has not started yet (batched hand-off only)."""
+        self._batched = False
+        self._receiver: threading.Thread | None = None
+        """The receive thread of a batched subscription (it ends when the subscriber is undeclared)."""
         self.queue_overflows = 0
         """Samples dropped from the local queue because the executor fell behind (KEEP_LAST)."""
         self.statistics = SubscriptionStatistics(time.time_ns())
@@ -149,8 +166,16 @@ class Subscription(Entity):
                     session, self.key, self._on_sample, history=history, recovery=recovery, subscriber_detection=True
                 )
             )
-        else:
+        elif inline or qos.history == "keep_all":
             self._subscriber = declare_with_callback(lambda: session.declare_subscriber(self.key, self._on_sample))
+        else:
+            self._batched = True
+            self._subscriber = session.declare_subscriber(self.key, zenoh.handlers.RingChannel(RECEIVE_RING_CAPACITY))
+            self._receiver = threading.Thread(
+                target=self._receive_loop, args=(self._subscriber.handler,), name=f"receive:{self.key}"
+            )
+            note_callback_thread(self._receiver)  # like Zenoh's callback threads: it ends when the session closes
+            self._receiver.start()
         if not self.any_type:
             self._declare_token()
 
@@ -169,6 +194,24 @@ class Subscription(Entity):
     def topic(self) -> str:
         return self.name
 
+    def _receive_loop(self, handler: zenoh.handlers.Handler[zenoh.Sample]) -> None:
+        # The receive thread of a batched subscription. ``recv`` waits without the GIL; ``try_recv`` then takes
+        # what else is queued without giving the GIL up for each sample. Every RECEIVE_RING_CAPACITY samples it
+        # waits in ``recv`` again, which lets the executor run under a flood.
+        recv, try_recv, on_sample = handler.recv, handler.try_recv, self._on_sample
+        try:
+            while not self._destroyed:
+                on_sample(recv())
+                for _ in range(RECEIVE_RING_CAPACITY):
+                    sample = try_recv()
+                    if sample is None:
+                        break
+                    on_sample(sample)
+        except zenoh.ZError:
+            pass  # undeclared, or its session closed: the ring is gone
+        except Exception as err:  # nothing may end a node's reception silently
+            log.warning("%s: receive thread stopped: %s: %s", self.topic, type(err).__name__, err)
+
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Runs on a Zenoh thread: whatever arrives, nothing may escape from here.
         if self._destroyed:
@@ -182,8 +225,9 @@ class Subscription(Entity):
             )
 
     def _receive(self, sample: zenoh.Sample) -> None:
-        # Hot path (every sample, on a Zenoh thread): checks, statistics and queueing only. Deserialization waits
-        # for the executor, so samples that KEEP_LAST drops before their turn cost no decoding. Every line here
+        # Hot path (every sample, on the receive thread or Zenoh's): checks, statistics and queueing only.
+        # Deserialization waits for the executor, so samples that KEEP_LAST drops before their turn cost no
+        # decoding. Every line here
         # costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's table of layers).
         received = _time_ns()
         attachment = sample.attachment
@@ -241,13 +285,32 @@ class Subscription(Entity):
             pending.append((payload, info))  # drops the oldest when full; its post serves this one
             if full:
                 self.queue_overflows += 1
-        if not full:
+        if self._batched:
+            if not self._posted:  # one drain serves all that is queued before it starts
+                self._posted = True
+                self._post(self._drain_bound)
+        elif not full:
             self._post(self._dispatch_bound)
 
     def _drop(self, gid: bytes | None, size: int, cause: str, message: str, *args: object) -> None:
         """Count a sample dropped on arrival as an error of its publisher (if known) and log it, rate-limited."""
         self.statistics.on_error(gid, size)
         self.node.error_log.warning(f"{self.topic}:{cause}", message, *args)
+
+    def _drain(self) -> None:
+        # On the executor: delivers what is queued when it starts; what arrives meanwhile gets the next drain, so
+        # the node's other callbacks (timers, services, other topics) still take their turns under a flood.
+        self._posted = False  # cleared before looking at the queue: a sample queued after this posts again
+        pending, lock, deliver = self._pending, self._pending_lock, self._deliver
+        for _ in range(len(pending)):
+            with lock:
+                if not pending:
+                    return
+                payload, info = pending.popleft()
+            deliver(payload, info)
+        if pending and not self._posted:
+            self._posted = True
+            self._post(self._drain_bound)
 
     def _dispatch(self) -> None:
         with self._pending_lock:
