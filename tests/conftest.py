@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -15,6 +16,12 @@ from .support import free_port
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    # Started in the background of a non-interactive shell (`cmd &`, nohup), the suite inherits Ctrl-C ignored,
+    # and so would every process it starts: the tests of Ctrl-C (a router, a node, a launch stopping on SIGINT)
+    # would test the shell instead. Python's own handler puts them back as a terminal starts them.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)
