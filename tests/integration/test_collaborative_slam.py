@@ -154,7 +154,10 @@ def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_resta
     keyframes = slam["r2d2"].counts["keyframes"] - keyframes_before  # since the restart
     assert writer.sent_keyframes >= keyframes - 1  # the newest may wait for graph_period
     assert slam["c3po"].counts["bad_peer_messages"] == slam["r2d2"].counts["bad_peer_messages"] == 0
-    assert slam["r2d2"].counts["peer_closures"] >= 6  # three before the restart, three after, at least
+    # Each placement rests on at least three closures of the pair, verified by either agent (each shares its own):
+    # three before the restart, three after, at least; r2d2 verified some itself.
+    verified = {agent: node.counts["peer_closures"] for agent, node in slam.items()}
+    assert sum(verified.values()) >= 6 and verified["r2d2"] >= 1, verified
 
 
 def test_a_late_agent_is_placed_from_the_closures_the_other_shares(make_context: Callable[..., Context]) -> None:
