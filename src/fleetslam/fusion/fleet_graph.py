@@ -358,13 +358,8 @@ class FleetGraph:
         endpoints = _endpoints(used)
         chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference)
                   for agent in sorted(placed)}  # fmt: skip
-        closure_noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
-        for c in used:
-            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative),
-                                           closure_noise))  # fmt: skip
-        lm = g.LevenbergMarquardtParams()
-        lm.setMaxIterations(self.max_iterations)
-        result = g.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
+        self._add_closures(graph, used)
+        result = g.LevenbergMarquardtOptimizer(graph, values, self._lm_params()).optimize()
         solution = {}
         for agent in sorted(placed):
             mirror = self.agents[agent].mirror
@@ -457,13 +452,8 @@ class FleetGraph:
                     values.insert(key, pose)
                     graph.add(g.PriorFactorPose3(key, pose, held))
         known = int(graph.size())
-        closure_noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
-        for c in closures:
-            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative),
-                                           closure_noise))  # fmt: skip
-        lm = g.LevenbergMarquardtParams()
-        lm.setMaxIterations(self.max_iterations)
-        params = g.GncLMParams(lm)
+        self._add_closures(graph, closures)
+        params = g.GncLMParams(self._lm_params())
         params.setLossType(g.GncLossType.TLS)
         params.setKnownInliers(list(range(known)))
         optimizer = g.GncLMOptimizer(graph, values, params)
@@ -520,6 +510,19 @@ class FleetGraph:
         ``coarse_stride``-th and every closure's; the others follow the solved ones on either side."""
         recent = len(ids) - self.recent_keyframes
         return [i for k, i in enumerate(ids) if k % self.coarse_stride == 0 or k >= recent or i in endpoints]
+
+    def _add_closures(self, graph: Any, closures: Iterable[FleetClosure]) -> None:
+        """One ``BetweenFactorPose3`` per closure, with the closures' noise (``closure_sigma``)."""
+        g = _gtsam()
+        noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
+        for c in closures:
+            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative), noise))
+
+    def _lm_params(self) -> Any:
+        """Levenberg–Marquardt's parameters of every solve (GNC's inner steps too)."""
+        lm = _gtsam().LevenbergMarquardtParams()
+        lm.setMaxIterations(self.max_iterations)
+        return lm
 
     def _key(self, agent: str, keyframe_id: int) -> int:
         return (self.agents[agent].slot << _SLOT_BITS) | int(keyframe_id)
