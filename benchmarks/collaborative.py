@@ -412,15 +412,38 @@ class FleetBackend(Protocol):
         ...
 
 
-class LinkerPlacement:
+class PlacementLog:
+    """When each agent was first placed and every change of its placement: what both back-ends record."""
+
+    def __init__(self, reference: str, label: str = "") -> None:
+        self.reference = reference
+        self.label = label
+        """Said after the placement in the progress line."""
+        self.first_placed: dict[str, float] = {}
+        self.histories: dict[str, list[tuple[float, Pose | None]]] = {}
+
+    def record(self, name: str, stamp: float, transform: Pose | None) -> None:
+        """The agent's placement at ``stamp`` (None: not placed)."""
+        remember(self.histories.setdefault(name, []), stamp, transform)
+        if transform is not None and name not in self.first_placed:
+            self.first_placed[name] = stamp
+            if name != self.reference:
+                progress(f"  {name} placed in the fleet frame at {stamp:.1f} s{self.label}")
+
+    def placed_at(self, agent: str) -> float | None:
+        return self.first_placed.get(agent)
+
+    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
+        return self.histories.get(agent, [])
+
+
+class LinkerPlacement(PlacementLog):
     """Each agent placed by its own linker (``fleet_transform`` through any placed peer), as the SLAM nodes do;
     trajectories are each agent's own, moved rigidly by its final placement."""
 
     def __init__(self, reference: str) -> None:
-        self.reference = reference
+        super().__init__(reference)
         self.placements: dict[str, Pose] = {}
-        self.first_placed: dict[str, float] = {}
-        self.histories: dict[str, list[tuple[float, Pose | None]]] = {}
 
     def observe(self, fleet: Sequence[Agent], stamp: float) -> None:
         for agent in fleet:
@@ -430,17 +453,7 @@ class LinkerPlacement:
             if transform is None:
                 continue
             self.placements[agent.name] = transform
-            remember(self.histories.setdefault(agent.name, []), stamp, transform)
-            if agent.name not in self.first_placed:
-                self.first_placed[agent.name] = stamp
-                if agent.name != self.reference:
-                    progress(f"  {agent.name} placed in the fleet frame at {stamp:.1f} s")
-
-    def placed_at(self, agent: str) -> float | None:
-        return self.first_placed.get(agent)
-
-    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
-        return self.histories.get(agent, [])
+            self.record(agent.name, stamp, transform)
 
     def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]:
         out = {}
@@ -455,15 +468,15 @@ class LinkerPlacement:
         return {}
 
 
-class JointPlacement:
+class JointPlacement(PlacementLog):
     """The fleet back-end node's joint optimisation (:class:`~fleetslam.fusion.fleet_graph.FleetGraph`, GNC over every
     agent's keyframes and the inter-agent closures they published), fed by the agents' graph updates as the node is,
     solving at most at the node's rate (simulated time); each agent placed by its solution's ``T_fleet_map``, and its
     trajectory its own, moved rigidly by the final one (as the fleet map places it from ``/fleet/placements``)."""
 
     def __init__(self, reference: str) -> None:
+        super().__init__(reference, " (joint)")
         c = FleetGraphConfig()
-        self.reference = reference
         self.period = 1.0 / c.rate
         self.graph = FleetGraph(
             reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
@@ -476,8 +489,6 @@ class JointPlacement:
         self.solve_cpu_s = 0.0
         self.last: FleetSolution | None = None
         """The last solve's outcome."""
-        self.first_placed: dict[str, float] = {}
-        self.histories: dict[str, list[tuple[float, Pose | None]]] = {}
 
     def observe(self, fleet: Sequence[Agent], stamp: float) -> None:
         for agent in fleet:
@@ -495,17 +506,7 @@ class JointPlacement:
         self.solve_cpu_s += solution.cpu_seconds
         for name in set(self.histories) | set(solution.placements):
             placement = solution.placements.get(name)
-            remember(self.histories.setdefault(name, []), stamp, None if placement is None else placement.T_fleet_map)
-            if placement is not None and name not in self.first_placed:
-                self.first_placed[name] = stamp
-                if name != self.reference:
-                    progress(f"  {name} placed in the fleet frame at {stamp:.1f} s (joint)")
-
-    def placed_at(self, agent: str) -> float | None:
-        return self.first_placed.get(agent)
-
-    def history(self, agent: str) -> list[tuple[float, Pose | None]]:
-        return self.histories.get(agent, [])
+            self.record(name, stamp, None if placement is None else placement.T_fleet_map)
 
     def trajectories(self, fleet: Sequence[Agent]) -> dict[str, Trajectory]:
         self.solve(max(a.last_stamp for a in fleet))  # the updates sent since the last solve
