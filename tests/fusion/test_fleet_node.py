@@ -102,7 +102,12 @@ def test_agents_without_start_poses_wait_for_the_placement_their_slam_publishes(
     r2d2_in_fleet = pose_from_xyz_rpy(10.0, 0.0, 0.0, 0.0, 0.0, np.pi)
     placement["r2d2"].publish(transform_msg(r2d2_in_fleet, "fleet", "r2d2/map", 0).transforms[0])
     assert wait_until(lambda: fleet.fleet.agents() == ["c3po", "r2d2"], 10.0)
-    fleet.fuse_pending()
-    fused = fleet.fleet.fused()
-    assert fused.is_occupied([2.05, 0.05, 0.55]) and fused.is_occupied([7.95, 0.05, 0.55])
+
+    def both_walls() -> bool:
+        # The node's own tick may be fusing r2d2's map as it lands: its map is in once a fusion has taken it.
+        fleet.fuse_pending()
+        fused = fleet.fleet.fused()
+        return bool(fused.is_occupied([2.05, 0.05, 0.55]) and fused.is_occupied([7.95, 0.05, 0.55]))
+
+    assert wait_until(both_walls, 10.0)
     np.testing.assert_allclose(fleet.placed["r2d2"], r2d2_in_fleet, atol=1e-9)
