@@ -90,7 +90,7 @@ from fleetslam.eval import ape, fleet_ape
 from fleetslam.fusion.alignment import rigid_fit
 from fleetslam.fusion.collaboration import InterAgentLinker, SharedClosure
 from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolution
-from fleetslam.fusion.fleet_graph_node import FleetGraphConfig
+from fleetslam.fusion.fleet_graph_node import FleetGraphConfig, closure_covariance
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate
 from fleetslam.fusion.keyframe_summary import summarize, summary_fields
 from fleetslam.geometry import invert, pose_to_quat, rotation_angle
@@ -98,7 +98,7 @@ from fleetslam.msg.conversions import camera_info_msg
 from fleetslam.msg.typesys import message_from_dict, serialize
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.node import SlamNodeConfig
-from fleetslam.slam.peer_recognition import PeerMatch
+from fleetslam.slam.peer_recognition import PeerMatch, closure_information
 from fleetslam.slam.pipeline import SlamPipeline
 from fleetslam.trajectory import NearestPose, Trajectory
 
@@ -206,7 +206,7 @@ def delta_bytes(agent: str, update: GraphUpdate[Constraint], stamp: float) -> in
             constraints.append(
                 {"from_id": c.match.own_id, "to_id": c.match.peer_id, "from_agent": agent,
                  "to_agent": c.match.peer_agent, "kind": 2, "relative": pose_fields(c.match.relative),
-                 "information": np.eye(6).reshape(36) * 1e4, "to_epoch": c.peer_epoch}
+                 "information": closure_information(c.match), "to_epoch": c.peer_epoch}
             )  # fmt: skip
         else:
             constraints.append(
@@ -333,6 +333,7 @@ def step_agent(agent: Agent, frame: RGBDFrame, fleet: Sequence[Agent], *, everyt
             agent.recognizer = agent.pipeline.peer_recognizer(
                 max_verifications=NODE.collaboration.max_verifications,
                 min_off_plane=NODE.collaboration.min_off_plane_inliers,
+                quality=NODE.collaboration.closure_quality(),
             )
         start = time.thread_time()
         matches = agent.linker.step(agent.recognizer, agent.pipeline.keyframe_poses())
@@ -480,9 +481,9 @@ class JointPlacement(PlacementLog):
         self.period = 1.0 / c.rate
         self.graph = FleetGraph(
             reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
-            inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride,
-            recent_keyframes=c.recent_keyframes, min_closures=c.min_closures, min_places=c.min_places,
-            dominance=c.dominance, gnc_budget=c.gnc_budget,
+            closure_sigma_floor=c.closure_sigma_floor, inlier_probability=c.inlier_probability,
+            coarse_stride=c.coarse_stride, recent_keyframes=c.recent_keyframes, min_closures=c.min_closures,
+            min_places=c.min_places, dominance=c.dominance, gnc_budget=c.gnc_budget,
         )  # fmt: skip
         self.solved_at = -math.inf
         self.solves = 0
@@ -530,7 +531,15 @@ class JointPlacement(PlacementLog):
 def closure_reports(agent: str, update: GraphUpdate[Constraint]) -> GraphUpdate[Any]:
     """The update as the fleet back-end node converts it: its inter-agent closures as ``ClosureReport``."""
     closures = [
-        ClosureReport(agent, c.match.own_id, c.match.peer_agent, c.match.peer_id, c.match.relative, c.peer_epoch)
+        ClosureReport(
+            agent,
+            c.match.own_id,
+            c.match.peer_agent,
+            c.match.peer_id,
+            c.match.relative,
+            c.peer_epoch,
+            closure_covariance(closure_information(c.match)),
+        )
         for c in update.constraints
         if isinstance(c, InterAgent)
     ]

@@ -39,7 +39,7 @@ from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
 from fleetslam.fusion.keyframe_summary import KeyframeSummary
 from fleetslam.fusion.summary_catchup import SummaryCatchUp
 from fleetslam.geometry import invert
-from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, PeerMatch, PeerPlaceRecognizer
+from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, ClosureQuality, PeerMatch, PeerPlaceRecognizer
 
 Pose = NDArray[np.float64]
 
@@ -54,6 +54,14 @@ class CollaborationConfig(ConfigModel):
     min_off_plane_inliers: int = Field(default=MIN_OFF_PLANE_INLIERS, ge=0)
     """PnP inliers of a peer match that must lie off the plane holding most of them (0: no check): a tiled floor
     gives closures shifted by its period that agree with each other."""
+    closure_min_spread: float = Field(default=ClosureQuality.min_spread, ge=0.0, le=0.5)
+    """A peer closure's refined inliers must spread over at least this fraction of the image in each direction
+    (standard deviation of their pixel positions over the image's size; 0.29 for a uniform spread): inliers bunched
+    in one small patch far away pin the transform poorly (closures 10–23 cm off had 0.04–0.06)."""
+    closure_max_std: float = Field(default=ClosureQuality.max_translation_std, gt=0.0)
+    """Largest standard deviation (m) of a peer closure's translation, from its refinement's covariance."""
+    closure_max_std_deg: float = Field(default=ClosureQuality.max_rotation_std_deg, gt=0.0)
+    """Largest standard deviation (degrees) of a peer closure's rotation, from its refinement's covariance."""
     budget_ms: float = Field(default=15.0, gt=0.0)
     """Time the node gives peer keyframes between two of its own frames; the rest wait in the queue."""
     max_queued: int = Field(default=30, ge=1)
@@ -85,6 +93,15 @@ class CollaborationConfig(ConfigModel):
     """How long (s) a catch-up request waits for its answer (a dead link must not hold the requests up longer)."""
     catch_up_grace: float = Field(default=2.0, ge=0.0)
     """A peer keyframe is asked for once its graph has named it this long (s) without its summary arriving."""
+
+    def closure_quality(self) -> ClosureQuality:
+        """What a verified peer closure must show to be believed precise (see
+        :func:`~fleetslam.slam.peer_recognition.refine_closure`)."""
+        return ClosureQuality(
+            min_spread=self.closure_min_spread,
+            max_translation_std=self.closure_max_std,
+            max_rotation_std_deg=self.closure_max_std_deg,
+        )
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,7 @@ from scipy.spatial.transform import Rotation
 from fleetslam._imports import require
 from fleetslam.fusion.consistency import ClosureSet, ConsistencyTolerance, Decision, PairClosure, fit_frames
 from fleetslam.fusion.graph_exchange import GraphMirror, GraphUpdate
-from fleetslam.geometry import invert
+from fleetslam.geometry import invert, skew
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +87,9 @@ class ClosureReport:
     """``T_fromcamera_tocamera``."""
     to_epoch: int
     """The run of ``to_agent`` that ``to_id`` belongs to."""
+    covariance: Pose | None = None
+    """6×6 covariance of ``relative`` as its agent estimated it (translation first, perturbation on the right:
+    ``relative · exp(ξ)``); None: unknown (``FleetGraph.closure_sigma`` stands in)."""
 
     @cached_property
     def oriented(self) -> FleetClosure:
@@ -104,6 +107,8 @@ class FleetClosure:
     b_id: int
     relative: Pose
     """``T_acamera_bcamera``."""
+    covariance: Pose | None = None
+    """Of ``relative``, as :attr:`ClosureReport.covariance`."""
 
     @property
     def key(self) -> ClosureKey:
@@ -112,8 +117,14 @@ class FleetClosure:
     @classmethod
     def of(cls, report: ClosureReport) -> FleetClosure:
         if (report.from_agent, report.from_id) <= (report.to_agent, report.to_id):
-            return cls(report.from_agent, report.from_id, report.to_agent, report.to_id, report.relative)
-        return cls(report.to_agent, report.to_id, report.from_agent, report.from_id, invert(report.relative))
+            return cls(report.from_agent, report.from_id, report.to_agent, report.to_id, report.relative,
+                       report.covariance)  # fmt: skip
+        covariance = None
+        if report.covariance is not None:  # (T·exp(ξ))⁻¹ = T⁻¹·exp(−Ad_T·ξ)
+            adjoint = _adjoint(report.relative)
+            covariance = adjoint @ report.covariance @ adjoint.T
+        return cls(report.to_agent, report.to_id, report.from_agent, report.from_id, invert(report.relative),
+                   covariance)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -170,7 +181,10 @@ class FleetGraph:
     optimised graph: millimetres apart over a keyframe's 25 cm in the benchmarks; 5 cm let imprecise closures bend
     the agents' chains, the reference's included: 3-agent joint fleet ATE 7.4 cm against 1.7 cm now)."""
     closure_sigma: tuple[float, float] = (0.05, 0.02)
-    """Standard deviation (m, rad) of an inter-agent closure."""
+    """Standard deviation (m, rad) of an inter-agent closure that comes without its covariance."""
+    closure_sigma_floor: tuple[float, float] = (0.01, 0.005)
+    """Standard deviation (m, rad) added (in quadrature) to a closure's own covariance: its two keyframes' poses in
+    their agents' graphs are not exact either (``odometry_sigma`` of one keyframe)."""
     inlier_probability: float = 0.99
     """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
     max_iterations: int = 20
@@ -512,11 +526,18 @@ class FleetGraph:
         return [i for k, i in enumerate(ids) if k % self.coarse_stride == 0 or k >= recent or i in endpoints]
 
     def _add_closures(self, graph: Any, closures: Iterable[FleetClosure]) -> None:
-        """One ``BetweenFactorPose3`` per closure, with the closures' noise (``closure_sigma``)."""
+        """One ``BetweenFactorPose3`` per closure, with its own covariance (plus ``closure_sigma_floor``), or
+        ``closure_sigma`` when it came without one: an imprecise closure weighs less, and GNC judges it by its own
+        uncertainty."""
         g = _gtsam()
         noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
+        floor = np.diag(_sigmas(self.closure_sigma_floor) ** 2)
         for c in closures:
-            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative), noise))
+            model = noise
+            if c.covariance is not None:
+                rotation_first = np.asarray(c.covariance, np.float64)[np.ix_(_ROTATION_FIRST, _ROTATION_FIRST)]
+                model = g.noiseModel.Gaussian.Covariance(rotation_first + floor)
+            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative), model))
 
     def _lm_params(self) -> Any:
         """Levenberg–Marquardt's parameters of every solve (GNC's inner steps too)."""
@@ -568,6 +589,19 @@ def _steps(poses: list[Pose]) -> NDArray[np.float64]:
     steps[:, :3, :3] = rotation_t @ stack[1:, :3, :3]
     steps[:, :3, 3] = np.einsum("kij,kj->ki", rotation_t, stack[1:, :3, 3] - stack[:-1, :3, 3])
     return steps
+
+
+_ROTATION_FIRST = [3, 4, 5, 0, 1, 2]
+"""Our 6-vectors are translation first, GTSAM's Pose3 tangent rotation first."""
+
+
+def _adjoint(pose: Pose) -> NDArray[np.float64]:
+    """``Ad_T`` on (translation, rotation) tangent vectors: ``T·exp(ξ)·T⁻¹ = exp(Ad_T·ξ)``."""
+    rotation, translation = pose[:3, :3], pose[:3, 3]
+    adjoint = np.zeros((6, 6))
+    adjoint[:3, :3] = adjoint[3:, 3:] = rotation
+    adjoint[:3, 3:] = skew(translation) @ rotation
+    return adjoint
 
 
 def _sigmas(sigma: tuple[float, float]) -> NDArray[np.float64]:

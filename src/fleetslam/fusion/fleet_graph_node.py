@@ -26,6 +26,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import Field
 
 from fleetslam import topics
@@ -67,7 +68,11 @@ class FleetGraphConfig(ConfigModel):
     optimised poses; known inliers). Tight: an agent's own chain is far more precise over a keyframe than an
     inter-agent closure, which must not bend it."""
     closure_sigma: tuple[float, float] = (0.05, 0.02)
-    """Standard deviation (m, rad) of an inter-agent closure (the agents' verification noise)."""
+    """Standard deviation (m, rad) of an inter-agent closure that comes without its covariance (an agent that
+    sends none: zeros as its information)."""
+    closure_sigma_floor: tuple[float, float] = (0.01, 0.005)
+    """Standard deviation (m, rad) added in quadrature to the covariance an agent sent with its closure (the two
+    keyframes' own poses are not exact either)."""
     inlier_probability: float = Field(default=0.99, gt=0.0, lt=1.0)
     """GNC (truncated least squares): a closure whose whitened error is beyond this quantile of χ²(6) is an
     outlier."""
@@ -104,7 +109,8 @@ def fleet_graph(config: FleetGraphConfig) -> FleetGraph:
     reference = c.reference or (min(c.agents) if c.agents else "")
     return FleetGraph(
         reference=reference, odometry_sigma=c.odometry_sigma, closure_sigma=c.closure_sigma,
-        inlier_probability=c.inlier_probability, coarse_stride=c.coarse_stride, recent_keyframes=c.recent_keyframes,
+        closure_sigma_floor=c.closure_sigma_floor, inlier_probability=c.inlier_probability,
+        coarse_stride=c.coarse_stride, recent_keyframes=c.recent_keyframes,
         tolerance=ConsistencyTolerance(), min_closures=c.min_closures, min_places=c.min_places, dominance=c.dominance,
         gnc_budget=c.gnc_budget,
     )  # fmt: skip
@@ -125,8 +131,23 @@ def closure_update(agent: str, msg: Any) -> GraphUpdate[ClosureReport]:
         if not np.isfinite(relative).all():
             raise MessageError("an inter-agent closure is not finite")
         closures.append(ClosureReport(agent, int(c.from_id), str(c.to_agent), int(c.to_id), relative,
-                                      int(c.to_epoch)))  # fmt: skip
+                                      int(c.to_epoch), closure_covariance(c.information)))  # fmt: skip
     return GraphUpdate(update.sequence, update.full, update.poses, update.stamps, closures, update.epoch)
+
+
+def closure_covariance(information: Any) -> NDArray[np.float64] | None:
+    """The covariance of an inter-agent closure from its message's 6×6 information (translation first); None when
+    the agent sent none (zeros) or it cannot be inverted (then the back-end's ``closure_sigma`` stands in)."""
+    matrix = np.asarray(information, np.float64).reshape(6, 6)
+    if not np.isfinite(matrix).all() or not matrix.any():
+        return None
+    try:
+        covariance = np.linalg.inv(0.5 * (matrix + matrix.T))
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.isfinite(covariance).all() and (np.linalg.eigvalsh(covariance) > 0).all()):
+        return None
+    return np.asarray(covariance, np.float64)
 
 
 class FleetGraphNode:

@@ -67,6 +67,8 @@ class VerificationResult:
     """"accepted" or why it was rejected."""
     off_plane: int = 0
     """Forward PnP inliers off the plane that holds most of them (0 when rejected before they are counted)."""
+    matches: tuple[NDArray[np.intp], NDArray[np.intp]] | None = None
+    """(query, candidate) keypoint indices of the forward PnP inliers of an accepted transform (for a refinement)."""
 
     @property
     def accepted(self) -> bool:
@@ -264,7 +266,8 @@ class GeometricVerifier:
                 None, count, n, f"{off_plane} inliers off their dominant plane (< {self.min_off_plane})", off_plane
             )
         transform = self.base_camera @ candidate_from_query @ invert(self.base_camera)
-        return VerificationResult(transform, count, n, "accepted", off_plane)
+        matches = (q_idx[valid][forward_inliers], c_idx[valid][forward_inliers])
+        return VerificationResult(transform, count, n, "accepted", off_plane, matches)
 
 
 def off_plane_count(points: NDArray[np.float64], tolerance: float, *, trials: int = 200) -> int:

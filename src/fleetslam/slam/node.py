@@ -60,7 +60,7 @@ from fleetslam.msg.typesys import get_type, header, message_from_dict, ns_from_s
 from fleetslam.save_paths import save_path
 from fleetslam.slam.config import SlamConfig
 from fleetslam.slam.frame_queue import FramePair, FrameQueue
-from fleetslam.slam.peer_recognition import PeerMatch
+from fleetslam.slam.peer_recognition import PeerMatch, closure_information
 from fleetslam.slam.pipeline import SlamPipeline, StepResult
 from fleetslam.slam.pose_buffer import PoseBuffer
 
@@ -470,6 +470,7 @@ class SlamNode:
                 self._recognizer = self.pipeline.peer_recognizer(
                     max_verifications=self.config.collaboration.max_verifications,
                     min_off_plane=self.config.collaboration.min_off_plane_inliers,
+                    quality=self.config.collaboration.closure_quality(),
                 )
             before = sum(state.recognised for state in self.linker.peers.values())
             matches = self.linker.step(self._recognizer, self.pipeline.keyframe_poses())
@@ -686,14 +687,13 @@ class SlamNode:
         """A ``KeyframeGraph`` of these keyframes and constraints (all of them, or a delta)."""
         ids = sorted(poses)
         constraint_type = get_type("fleetslam_msgs/msg/GraphConstraint")
-        inter_information = np.eye(6).reshape(36) * 1e4  # 1 cm / 0.01 rad, as a verified intra-agent loop
 
         def constraint(c: Any, relative: Any) -> Any:
             if isinstance(c, tuple):  # (PeerMatch, the peer's epoch): a closure shared with the peer
                 match, epoch = c
                 return constraint_type(
                     from_id=int(match.own_id), to_id=int(match.peer_id), from_agent=self.agent,
-                    to_agent=match.peer_agent, kind=2, relative=relative, information=inter_information,
+                    to_agent=match.peer_agent, kind=2, relative=relative, information=closure_information(match),
                     to_epoch=int(epoch),
                 )  # fmt: skip
             return constraint_type(

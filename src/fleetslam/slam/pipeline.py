@@ -12,7 +12,7 @@ import json
 import logging
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +37,7 @@ from fleetslam.trajectory import Trajectory, write_tum
 
 if TYPE_CHECKING:
     from fleetslam.slam.loop_closure import LoopClosureDetector
-    from fleetslam.slam.peer_recognition import PeerPlaceRecognizer
+    from fleetslam.slam.peer_recognition import ClosureQuality, PeerPlaceRecognizer
 
 logger = logging.getLogger(__name__)
 
@@ -174,18 +174,20 @@ class SlamPipeline:
         return self._detector.bag_of_words(keyframe_id)
 
     def peer_recognizer(
-        self, *, max_verifications: int = 2, min_off_plane: int | None = None
+        self, *, max_verifications: int = 2, min_off_plane: int | None = None, quality: ClosureQuality | None = None
     ) -> PeerPlaceRecognizer | None:
         """A recognizer of other agents' keyframes in this pipeline's memory, verifying as its own loop closure does
-        (None without loop closure); ``min_off_plane``: see :func:`make_peer_recognizer` (None: its default). Call
-        it, and use it, from the thread that steps the pipeline."""
+        (None without loop closure); ``min_off_plane`` and ``quality``: see :func:`make_peer_recognizer` (None: their
+        defaults; the quality's depth noise is this pipeline's ``odometry.depth_noise``). Call it, and use it, from
+        the thread that steps the pipeline."""
         if self._detector is None:
             return None
-        from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, make_peer_recognizer
+        from fleetslam.slam.peer_recognition import MIN_OFF_PLANE_INLIERS, ClosureQuality, make_peer_recognizer
 
+        quality = replace(quality or ClosureQuality(), depth_noise=self.config.odometry.depth_noise)
         return make_peer_recognizer(
             self.config.loop_closure, self._detector.memory, self.intrinsics.K, max_verifications=max_verifications,
-            min_off_plane=MIN_OFF_PLANE_INLIERS if min_off_plane is None else min_off_plane,
+            min_off_plane=MIN_OFF_PLANE_INLIERS if min_off_plane is None else min_off_plane, quality=quality,
         )  # fmt: skip
 
     def constraints(self) -> list[Constraint]:

@@ -164,6 +164,27 @@ def refine_pose(
     return pose
 
 
+def refine_pose_information(
+    T_camera_world: NDArray[np.float64],
+    points_world: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    camera_matrix: NDArray[np.float64],
+    *,
+    pixel_std: float | NDArray[np.float64] = 1.0,
+    huber_px: float = 2.0,
+    iterations: int = 6,
+    depth: tuple[NDArray[np.float64], float] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """As :func:`refine_pose` without a prior, and with what the solve knows of its precision: the refined
+    ``T_camera_world``, the Gauss–Newton Hessian of the (whitened, robust) residuals in the left perturbation of
+    ``T_camera_world`` (translation first; its inverse is the covariance when the noise is as stated) and the
+    a-posteriori variance factor (about 1 when it is)."""
+    return _gauss_newton(
+        np.asarray(T_camera_world, np.float64), points_world, pixels, camera_matrix, None, pixel_std, huber_px,
+        iterations, None, depth,
+    )  # fmt: skip
+
+
 def planar_basis(T_base_camera: NDArray[np.float64]) -> NDArray[np.float64]:
     """(6, 3) left perturbations of ``T_camera_world`` caused by moving the base by (dx, dy, dyaw) in its own
     frame: δ = −Ad(T_camera_base)·ξ_base (translation first)."""
