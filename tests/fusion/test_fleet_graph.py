@@ -7,7 +7,7 @@ import numpy as np
 from fleetslam.fusion.alignment import rigid_fit
 from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph
 from fleetslam.fusion.graph_exchange import GraphUpdate
-from fleetslam.geometry import invert, pose_from_planar, rotation_angle
+from fleetslam.geometry import invert, make_pose, pose_from_planar, rotation_angle, so3_exp, so3_log
 
 STEPS = 41
 """Keyframes per agent, 0.5 m apart along the same 20 m aisle."""
@@ -233,3 +233,43 @@ def test_many_agents_admitted_at_once_are_judged_a_few_per_solve_within_the_budg
         solution = graph.solve()
         assert solution is not None and solution.robust and len(solution.kept) == 8 * len(ENDS) + 1
         assert solution.gnc_variables == (61 if most == budget else unbounded.gnc_variables)  # keyframe 10 was one
+
+
+def test_an_imprecise_closure_with_its_covariance_weighs_less() -> None:
+    c3po, r2d2 = _truth()
+    own_r2d2 = _drifted(r2d2, R2D2_MAP, 0.0)
+    precise = np.diag([0.01**2] * 3 + [0.005**2] * 3)
+    loose = np.diag([0.12**2] * 3 + [0.03**2] * 3)
+    # A closure 8 cm off sideways at keyframe 20, as a far patch of inliers gives one.
+    off = invert(r2d2[20]) @ c3po[20] @ pose_from_planar(0.0, 0.08, 0.0)
+
+    def solve(with_covariance: bool) -> float:
+        closures = [ClosureReport("r2d2", j, "c3po", j, invert(r2d2[j]) @ c3po[j], 11,
+                                  precise if with_covariance else None) for j in ENDS]  # fmt: skip
+        closures.append(ClosureReport("r2d2", 20, "c3po", 20, off, 11, loose if with_covariance else None))
+        fleet = FleetGraph()
+        fleet.apply("c3po", _update(c3po, [], epoch=11))
+        fleet.apply("r2d2", _update(own_r2d2, closures, 22))
+        solution = fleet.solve()
+        assert solution is not None and len(solution.kept) == len(ENDS) + 1  # GNC keeps it either way
+        return max(_beside_error(solution.placements["c3po"].poses, solution.placements["r2d2"].poses))
+
+    # With one sigma for every closure it counts as much as each true one and bends the aisle towards it.
+    assert solve(with_covariance=False) > 0.03  # 5 cm here, against 1.4 cm with the covariances
+    assert solve(with_covariance=True) < 0.4 * solve(with_covariance=False)
+
+
+def test_a_closure_reported_by_the_other_agent_keeps_its_covariance() -> None:
+    relative = pose_from_planar(1.0, 0.4, 0.6) @ make_pose(so3_exp([0.05, -0.02, 0.0]), [0.0, 0.0, 0.1])
+    xi = np.array([0.01, -0.02, 0.005, 0.003, 0.001, -0.002])  # (translation, rotation)
+    covariance = np.outer(xi, xi) + 1e-10 * np.eye(6)
+    # r2d2 reports it: the fleet graph orients it from c3po (the first by name), inverted.
+    closure = ClosureReport("r2d2", 3, "c3po", 5, relative, 11, covariance).oriented
+    np.testing.assert_allclose(closure.relative, invert(relative))
+    assert closure.covariance is not None
+    # The perturbation relative·exp(ξ) seen from the other side: inverse(relative·exp(ξ)) = inverse(relative)·exp(η).
+    step = 1e-4
+    perturbed = relative @ make_pose(so3_exp(step * xi[3:]), step * xi[:3])
+    difference = relative @ invert(perturbed)  # = exp(η)
+    eta = np.concatenate([difference[:3, 3], so3_log(difference[:3, :3])]) / step
+    np.testing.assert_allclose(closure.covariance, np.outer(eta, eta) + 1e-10 * np.eye(6), atol=2e-7)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from fleetslam import topics
-from fleetslam.fusion.fleet_graph_node import FleetGraphConfig, FleetGraphNode
+from fleetslam.fusion.fleet_graph_node import FleetGraphConfig, FleetGraphNode, closure_covariance
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_message
 from fleetslam.geometry import invert, pose_from_planar
 from fleetslam.middleware import Context, Node, QoSProfile
@@ -138,3 +138,11 @@ def test_the_fleet_map_prefers_the_back_end_placement(make_context: Callable[...
     # The back-end no longer places r2d2 (it restarted): its SLAM's own placement counts again.
     placements.publish(get_type("tf2_msgs/msg/TFMessage")(transforms=[]))
     assert wait_until(lambda: (fleet._apply_placements(), fleet.placed["r2d2"][0, 3] == 11.0)[1], 10.0)
+
+
+def test_a_closure_s_information_becomes_its_covariance_unless_the_agent_sent_none() -> None:
+    covariance = np.diag([1e-4, 4e-4, 9e-4, 1e-5, 2e-5, 3e-5])
+    np.testing.assert_allclose(closure_covariance(np.linalg.inv(covariance).reshape(36)), covariance)
+    assert closure_covariance(np.zeros(36)) is None  # an agent that sends no covariance: closure_sigma applies
+    assert closure_covariance(np.full(36, np.nan)) is None
+    assert closure_covariance(-np.eye(6).reshape(36)) is None  # not a covariance
