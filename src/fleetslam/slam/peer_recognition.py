@@ -7,9 +7,10 @@ few candidates, within a budget, are verified as the agent verifies its own loop
 from the candidate's 3D points into the peer's image and back the other way, the two directions agreeing; and,
 unlike its own loops, with enough inliers off the plane that holds most of them (:data:`MIN_OFF_PLANE_INLIERS`:
 a tiled floor admits solutions shifted by its period). The transform is full 6-DoF between the two cameras (the
-peer's mounting is not known here). The peer's keypoints are first expressed in this camera's pixels
-(``K_own · K_peer⁻¹``, exact for undistorted pinhole cameras), so robots with different cameras recognise each
-other.
+peer's mounting is not known here); it is then refined with the peer's measured depths and believed only when
+precise (:func:`refine_closure`: inliers spread over the image, a tight covariance, which the match carries).
+The peer's keypoints are first expressed in this camera's pixels (``K_own · K_peer⁻¹``, exact for undistorted
+pinhole cameras), so robots with different cameras recognise each other.
 
 Pure: the caller owns the memory and calls :meth:`PeerPlaceRecognizer.recognize` from the thread that updates it.
 """
@@ -86,10 +87,10 @@ class RecognitionResult:
 class ClosureQuality:
     """What a peer closure must show, after both-ways PnP, to be believed precise (see :func:`refine_closure`).
 
-    Measured on the collaborative benchmark's verified closures (procedural plant, 320×240): every closure more than
-    10 cm or 2° off had its inliers bunched in one small patch of the image, 3–4 m away (standard deviation of
-    their pixel positions 4–6 % of the image height), or a solve whose translation σ was 3–8 cm; the precise ones
-    spread over 7–19 % and had σ of 0.3–2 cm."""
+    Measured on the collaborative benchmark's verified closures (procedural plant, 320×240; docs/collaboration.md,
+    "Precise closures"): of the ten more than 10 cm or 2° off, eight had their inliers bunched in one small patch of
+    the image 3–4 m away (spread 0.03–0.06, see :func:`image_spread`), still 5–11 cm off once refined; two were PnP
+    leaving the range of far points loose, 1.6 and 5.8 cm off once refined with depth."""
 
     min_spread: float = 0.07
     """Inliers' standard deviation of pixel position, in each image direction, over the image's size there (a
@@ -102,7 +103,7 @@ class ClosureQuality:
     covariance_scale: float = 2.0
     """The solve's covariance times this: its points' errors are correlated (depth quantisation, keypoints at
     edges), so the errors measured against the ground truth were 1.4 times the solve's σ (their squared Mahalanobis
-    distance had a median of 10 instead of χ²₆'s 5.3; 4.6–5.1 once scaled)."""
+    distance had a median of 10 instead of χ²₆'s 5.3; 4.4–5.1 once scaled)."""
     min_kept_fraction: float = 0.75
     """The refinement must keep this fraction of the verification's minimum inlier count."""
     outlier_sigma: float = 3.4
