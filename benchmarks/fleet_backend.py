@@ -63,6 +63,7 @@ from fleetslam.middleware import Context, Node, Router
 from fleetslam.middleware.recording import BagWriter, read_bag
 from fleetslam.msg.conversions import pose_matrix, pose_msg, pose_msgs
 from fleetslam.msg.typesys import deserialize, get_type, ns_from_stamp, serialize
+from fleetslam.slam.peer_recognition import closure_information
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from collaborative import AGENTS, cache_dir, export, make_agent
@@ -82,7 +83,8 @@ def _constraint(**fields: Any) -> Any:
 
 def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
     """The two real agents' graph updates, recorded once (see the module docstring)."""
-    out = cache_dir() / "fleet_backend" / f"{scene}_{route}_{size[0]}x{size[1]}_{hz:g}hz_v1"
+    # v2: the closures carry their covariance (as the SLAM node sends them since the precision rule).
+    out = cache_dir() / "fleet_backend" / f"{scene}_{route}_{size[0]}x{size[1]}_{hz:g}hz_v2"
     if (out / "metadata.yaml").is_file():
         return out
     import cv2
@@ -127,7 +129,7 @@ def record(scene: str, route: str, size: tuple[int, int], hz: float) -> Path:
                 epoch_of_other = writers[other.name].epoch
                 constraints[agent.name] += [
                     _constraint(from_id=m.own_id, to_id=m.peer_id, from_agent=agent.name, to_agent=m.peer_agent,
-                                kind=2, relative=pose_msg(m.relative), information=np.eye(6).reshape(36) * 1e4,
+                                kind=2, relative=pose_msg(m.relative), information=closure_information(m),
                                 to_epoch=epoch_of_other)
                     for m in matches
                 ]  # fmt: skip
@@ -215,7 +217,7 @@ def replicate(recording: Path, copies: int, seed: int = 0) -> dict[str, Replica]
                 if previous is not None:
                     constraints += [
                         _constraint(from_id=i, to_id=i, from_agent=replica.name, to_agent=previous.name, kind=2,
-                                    relative=pose_msg(np.eye(4)), information=np.eye(6).reshape(36) * 1e4,
+                                    relative=pose_msg(np.eye(4)), information=np.zeros(36),  # closure_sigma
                                     to_epoch=previous.epoch)
                         for i in new if i % LINK_EVERY == 0 or (i < LINK_FIRST and i % 3 == 0)
                     ]  # fmt: skip
