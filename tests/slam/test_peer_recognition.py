@@ -205,3 +205,14 @@ def test_the_covariance_travels_as_the_constraint_information() -> None:
     np.testing.assert_allclose(closure_information(match).reshape(6, 6), np.linalg.inv(covariance))
     unrefined = PeerMatch(1, "r2d2", 2, 0.5, np.eye(4), 40, 12)
     assert not closure_information(unrefined).any()  # zeros: the back-end's own closure_sigma stands in
+
+
+def test_a_closure_its_own_solve_cannot_pin_is_not_believed_precise() -> None:
+    rng = np.random.default_rng(7)
+    truth = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.2, 0.0, 0.3])
+    # Spread over the view, but few points and all far away: their depth is known to ±10 cm.
+    points = _points_in_view(rng, 16, (20.0, 300.0), (20.0, 220.0), (7.5, 8.0))
+    pixels, depths = _closure_data(rng, points, truth)
+    refined = refine_closure(truth, points, pixels, depths, K_QVGA, ClosureQuality(), min_inliers=15)
+    assert refined.reason.startswith("imprecise"), refined.reason
+    assert refined.spread >= ClosureQuality().min_spread

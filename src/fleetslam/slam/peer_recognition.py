@@ -96,9 +96,12 @@ class ClosureQuality:
     """Inliers' standard deviation of pixel position, in each image direction, over the image's size there (a
     uniform spread over the whole image is 0.29): a patch of points far away pins the transform poorly, and a pair
     of stray points off the patch steers it."""
-    max_translation_std: float = 0.03
-    """Largest standard deviation (m) of the closure's translation (the covariance's largest axis)."""
-    max_rotation_std_deg: float = 1.0
+    max_translation_std: float = 0.05
+    """Largest standard deviation (m) of the closure's translation (the covariance's largest axis). The precise
+    closures of the benchmark had 1–2.3 cm, those of the integration tests' textured room 1.4–4.8 cm (real errors
+    under 1 cm): a bound for a closure the solve itself cannot pin, not a filter of the imprecise ones (the spread
+    is)."""
+    max_rotation_std_deg: float = 1.5
     """Largest standard deviation (degrees) of its rotation."""
     covariance_scale: float = 2.0
     """The solve's covariance times this: its points' errors are correlated (depth quantisation, keypoints at
