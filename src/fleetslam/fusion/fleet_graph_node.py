@@ -34,6 +34,7 @@ from fleetslam.errors import MessageError
 from fleetslam.fusion.consistency import ConsistencyTolerance
 from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolution
 from fleetslam.fusion.graph_exchange import GraphUpdate, graph_update_of
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import pose_matrix, pose_msgs, transform_msg
 from fleetslam.msg.typesys import get_type, header
@@ -147,8 +148,7 @@ class FleetGraphNode:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._subscribed: set[str] = set()
-        self._clients: dict[str, Any] = {}
-        self._requests: set[str] = set()
+        self._graph_fetcher = GraphFetcher(node, self.on_graph_update, timeout=self.config.request_timeout)
         self._asked: dict[str, float] = {}
         """When each agent's whole graph was last asked for (monotonic s)."""
         self._path_pubs: dict[str, Any] = {}
@@ -188,7 +188,7 @@ class FleetGraphNode:
         updates = topics.GRAPH_UPDATES
         self.node.create_subscription(updates.type, updates.of(agent), partial(self.on_graph_update, agent),
                                       updates.qos(depth=updates.depth))  # fmt: skip
-        self._clients[agent] = self.node.create_client("fleetslam_msgs/srv/GetGraph", f"/{agent}/graph/full")
+        self._graph_fetcher.add(agent)
         path = topics.FLEET_PATH
         self._path_pubs[agent] = self.node.create_publisher(path.type, path.of(agent), path.qos())
         log.info("fleet back-end: following %s", agent)
@@ -213,22 +213,8 @@ class FleetGraphNode:
 
     def _request_graph(self, agent: str) -> None:
         """Ask ``agent`` for its whole graph, off the worker (one request per agent at a time)."""
-        if agent in self._requests or agent not in self._clients:
-            return
-        self._requests.add(agent)
-        self.counts["graph_requests"] += 1
-
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._clients[agent].call(request, timeout=self.config.request_timeout)
-                self.on_graph_update(agent, response.graph)
-            except Exception as err:  # an agent gone or slow: the next gap asks again
-                log.info("fleet back-end: %s's graph could not be fetched: %s", agent, err)
-            finally:
-                self._requests.discard(agent)
-
-        threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{agent}", daemon=True).start()
+        if self._graph_fetcher.request(agent):
+            self.counts["graph_requests"] += 1
 
     # -- work ---------------------------------------------------------------------------------------------------
     def _work(self) -> None:

@@ -37,6 +37,7 @@ from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
 from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.geometry import quat_to_matrix
 from fleetslam.mapping.config import MappingConfig
 from fleetslam.mapping.fleet_correction import FleetCorrection, stamp_key
@@ -49,6 +50,9 @@ from fleetslam.msg.typesys import deserialize, get_type, header, message_from_di
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
+
+SLAM_GRAPH = "slam"
+"""The one graph a mapping node fetches whole: its own SLAM's (``graph/full`` in its namespace)."""
 
 
 class MappingNodeConfig(ConfigModel):
@@ -142,8 +146,8 @@ class MappingNode:
         self._graph_updates: list[bytes] = []
         """Graph updates received since the last tick, in order (decoded at the tick)."""
         self.graph = GraphMirror[Any]()
-        self._graph_client = node.create_client("fleetslam_msgs/srv/GetGraph", "graph/full")
-        self._graph_request: threading.Thread | None = None
+        self._graph_fetcher = GraphFetcher(node, self._on_full_graph)
+        self._graph_fetcher.add(SLAM_GRAPH, "graph/full")
         self._graph_lock = threading.Lock()
         """Guards ``_graph_updates``: the executor appends, the fetch of the whole graph puts it first."""
         self._version = 0
@@ -295,21 +299,12 @@ class MappingNode:
 
     def _request_graph(self) -> None:
         """SLAM's whole graph (``graph/full``), fetched off the executor; applied at a later tick."""
-        if self._graph_request is not None and self._graph_request.is_alive():
-            return
+        self._graph_fetcher.request(SLAM_GRAPH)
 
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._graph_client.call(request, timeout=5.0)
-                data = serialize(response.graph, "fleetslam_msgs/msg/KeyframeGraph")
-                with self._graph_lock:
-                    self._graph_updates.insert(0, data)
-            except Exception as err:  # SLAM not up yet, or gone: the next gap asks again
-                log.info("whole graph not fetched: %s", err)
-
-        self._graph_request = threading.Thread(target=ask, name=f"{self.node.fq_name}/graph", daemon=True)
-        self._graph_request.start()
+    def _on_full_graph(self, _: str, graph: Any) -> None:
+        data = serialize(graph, "fleetslam_msgs/msg/KeyframeGraph")
+        with self._graph_lock:
+            self._graph_updates.insert(0, data)
 
     def on_timer(self) -> None:
         with self._graph_lock:

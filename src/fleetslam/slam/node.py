@@ -41,6 +41,7 @@ from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import MessageError, ServiceError, UnsafePathError
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_of
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.fusion.keyframe_summary import KeyframeSummary, summarize, summary_fields, summary_from_message
 from fleetslam.fusion.summary_catchup import MAX_REQUEST_IDS, SummaryStore
 from fleetslam.geometry import invert, rotation_angle
@@ -210,8 +211,7 @@ class SlamNode:
         self._inter_agent: list[tuple[PeerMatch, int]] = []
         """Closures verified with peers, with the peer's run (epoch) they refer to."""
         self._inter_agent_sent = 0
-        self._graph_clients: dict[str, Any] = {}
-        self._graph_requests: set[str] = set()
+        self._graph_fetcher = GraphFetcher(node, self._on_peer_full_graph)
         for peer in self.config.peers:
             if peer == self.agent:
                 continue
@@ -220,14 +220,14 @@ class SlamNode:
             subscribe(topics.GRAPH_UPDATES, partial(self.on_peer_graph_update, peer), 50, topics.GRAPH_UPDATES.of(peer))
             subscribe(topics.FLEET_TRANSFORM, partial(self.on_peer_fleet_transform, peer), 1,
                       topics.FLEET_TRANSFORM.of(peer))  # fmt: skip
-            self._graph_clients[peer] = node.create_client("fleetslam_msgs/srv/GetGraph", f"/{peer}/graph/full")
+            self._graph_fetcher.add(peer)
         node.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", self.on_full_graph)
         self.summary_store = SummaryStore(self.config.collaboration.summary_store,
                                           max_per_call=self.config.collaboration.catch_up_batch)  # fmt: skip
         """This agent's newest keyframe summaries, for peers that missed them (``keyframe_summaries/catch_up``)."""
         node.create_service(CATCH_UP_TYPE, CATCH_UP_SERVICE, self.on_summaries_request)
         self._summary_clients = {peer: node.create_client(CATCH_UP_TYPE, f"/{peer}/{CATCH_UP_SERVICE}")
-                                 for peer in self._graph_clients}  # fmt: skip
+                                 for peer in self.config.peers if peer != self.agent}  # fmt: skip
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service(TRAJECTORY_TYPE, "slam/trajectory", self.on_trajectory)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
@@ -361,26 +361,15 @@ class SlamNode:
                 self.linker.receive_shared(SharedClosure(peer, int(c.from_id), int(c.to_id), relative, update.epoch))
 
     def _request_graph(self, peer: str) -> None:
-        """Ask ``peer`` for its whole graph, off the middleware's thread (one request per peer at a time)."""
-        if peer in self._graph_requests or peer not in self._graph_clients:
-            return
-        self._graph_requests.add(peer)
-        self.counts["graph_requests"] += 1
+        """Ask ``peer`` for its whole graph (off the middleware's thread, one request per peer at a time)."""
+        if self._graph_fetcher.request(peer):
+            self.counts["graph_requests"] += 1
 
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._graph_clients[peer].call(request, timeout=5.0)
-                if str(response.graph.agent) == peer:
-                    update = graph_update_of(response.graph)
-                    self.linker.apply_graph(peer, update)
-                    self._receive_shared(peer, update)
-            except Exception as err:  # a peer gone or a malformed answer: the next gap asks again
-                log.info("%s: %s's graph could not be fetched: %s", self.agent, peer, err)
-            finally:
-                self._graph_requests.discard(peer)
-
-        threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{peer}", daemon=True).start()
+    def _on_peer_full_graph(self, peer: str, graph: Any) -> None:
+        if str(graph.agent) == peer:
+            update = graph_update_of(graph)
+            self.linker.apply_graph(peer, update)
+            self._receive_shared(peer, update)
 
     def on_peer_fleet_transform(self, peer: str, msg: Any) -> None:
         """A peer's ``fleet → <peer>/map`` (latched ``slam/fleet_transform``), once it is placed in the fleet frame."""
