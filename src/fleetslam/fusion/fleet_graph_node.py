@@ -37,7 +37,7 @@ from fleetslam.fusion.graph_exchange import GraphUpdate, graph_update_of
 from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import pose_matrix, pose_msgs, transform_msg
-from fleetslam.msg.typesys import get_type, header
+from fleetslam.msg.typesys import get_type, header, serialize
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +92,11 @@ class FleetGraphConfig(ConfigModel):
     """The consistent set must be this many times larger than any set inconsistent with it (repeated structure)."""
     path_tolerance: float = Field(default=0.005, ge=0.0)
     """An agent's ``fleet_path`` is sent again when it has new keyframes or one moved more than this (m)."""
+    path_bytes_per_s: float = Field(default=20_000.0, gt=0.0)
+    """Most bytes per second of one agent's ``fleet_path``. A path goes out whole (about 80 B per keyframe): it is
+    sent again no sooner than its size divided by this after the last send (every 1 s at 250 keyframes, every 16 s at
+    4000), so that a long run's paths do not grow the traffic without bound. A follower places the keyframes newer
+    than the path it holds from the newest corrected one (the mapping node's ``follow_fleet``)."""
     request_timeout: float = Field(default=5.0, gt=0.0)
     """How long (s) a request for an agent's whole graph may take."""
 
@@ -152,7 +157,8 @@ class FleetGraphNode:
         self._asked: dict[str, float] = {}
         """When each agent's whole graph was last asked for (monotonic s)."""
         self._path_pubs: dict[str, Any] = {}
-        self._path_published: dict[str, tuple[list[int], np.ndarray]] = {}
+        self._path_published: dict[str, tuple[list[int], np.ndarray, float]] = {}
+        """Per agent, the keyframe ids and positions of the path last sent and when the next may go out."""
         """Per agent, the keyframe ids and positions of the path last sent."""
         placements = topics.FLEET_PLACEMENTS
         self.placements_pub = node.create_publisher(placements.type, placements.name, placements.qos())
@@ -307,12 +313,14 @@ class FleetGraphNode:
     def publish_paths(self) -> None:
         """Each placed agent's corrected keyframes, to whoever subscribes, when it has keyframes not sent yet or one
         of them moved more than ``path_tolerance`` since its path was last sent (a solve nudges every keyframe by
-        fractions of a millimetre; resending 32 paths for that would cost more than the solve)."""
+        fractions of a millimetre; resending 32 paths for that would cost more than the solve), within
+        ``path_bytes_per_s``."""
         if self.solution is None:
             return
         frame = self.config.frame_id
         pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
         path_type = get_type("nav_msgs/msg/Path")
+        now = time.monotonic()
         for agent, placement in self.solution.placements.items():
             publisher = self._path_pubs.get(agent)
             if publisher is None or not publisher.matched_subscriptions:
@@ -320,15 +328,15 @@ class FleetGraphNode:
             ids = sorted(placement.poses)
             positions = np.array([placement.poses[i][:3, 3] for i in ids])
             sent = self._path_published.get(agent)
-            if (
-                sent is not None
-                and sent[0] == ids
-                and (not len(ids) or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance)
+            if sent is not None and (
+                now < sent[2]
+                or (sent[0] == ids and (not ids or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance))
             ):
                 continue
             stamped = [
                 pose_stamped(header=header(frame, round(placement.stamps[i] * 1e9)), pose=pose)
                 for i, pose in zip(ids, pose_msgs([placement.poses[i] for i in ids]), strict=True)
             ]
-            publisher.publish(path_type(header=header(frame, self.node.now_ns()), poses=stamped))
-            self._path_published[agent] = (ids, positions)
+            data = serialize(path_type(header=header(frame, self.node.now_ns()), poses=stamped), "nav_msgs/msg/Path")
+            publisher.publish_raw(data)
+            self._path_published[agent] = (ids, positions, now + len(data) / self.config.path_bytes_per_s)
