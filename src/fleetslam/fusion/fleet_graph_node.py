@@ -13,7 +13,7 @@ placed; the fleet map node prefers these to the agents' own ``slam/fleet_transfo
 Nothing flows back to the agents' SLAM: an agent keeps mapping in its own frame whatever happens here (cut off,
 back-end restarted), and the back-end catches up from the agents' graphs when they come back. An agent's mapping node
 may follow its ``fleet_path`` (``follow_fleet``: its keyframes integrated where the solve put them, see
-:mod:`fleetslam.mapping.fleet_correction`), and goes on from its own graph when the paths stop.
+:mod:`fleetslam.fusion.fleet_correction`), and goes on from its own graph when the paths stop.
 """
 
 from __future__ import annotations
