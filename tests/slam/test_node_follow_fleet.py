@@ -20,25 +20,17 @@ from fleetslam.slam.frame_queue import FramePair
 from fleetslam.slam.node import SlamNode, SlamNodeConfig
 
 from ..support import wait_until
-from .textured_room import make_textures, render
+from .textured_room import image_messages, make_textures
 
 BASE_CAMERA = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
 INTRINSICS = Intrinsics(80.0, 80.0, 40.0, 30.0, 80, 60)
 
 
 def _feed(slam: SlamNode, frames: range, textures: list[Any]) -> None:
-    image = get_type("sensor_msgs/msg/Image")
     for k in frames:
         stamp_ns = 1_000_000_000 + k * 100_000_000
-        rgb, depth = render(pose_from_planar(0.02 * k, 0.0, 0.0) @ BASE_CAMERA, INTRINSICS, textures)
-        pair = FramePair(
-            stamp_ns,
-            image(header=header("camera", stamp_ns), height=60, width=80, encoding="rgb8", is_bigendian=0, step=240,
-                  data=np.ascontiguousarray(rgb).reshape(-1)),
-            image(header=header("camera", stamp_ns), height=60, width=80, encoding="32FC1", is_bigendian=0,
-                  step=320, data=np.ascontiguousarray(depth, np.float32).view(np.uint8).reshape(-1)),
-            time.monotonic(),
-        )  # fmt: skip
+        pose = pose_from_planar(0.02 * k, 0.0, 0.0) @ BASE_CAMERA
+        pair = FramePair(stamp_ns, *image_messages(pose, stamp_ns, INTRINSICS, textures), time.monotonic())
         with slam._lock:
             assert slam.process(pair) is not None
 
