@@ -42,7 +42,8 @@ class _SlowAgent:
 def test_one_request_per_agent_at_a_time_and_the_next_after_a_failure(make_context: Callable[..., Context]) -> None:
     agent = _SlowAgent(make_context("c3po"))
     received: list[tuple[str, Any]] = []
-    fetcher = GraphFetcher(Node("reader", context=make_context()), lambda a, g: received.append((a, g)), timeout=5.0)
+    reader = Node("reader", context=make_context())
+    fetcher = GraphFetcher(reader.create_client, lambda a, g: received.append((a, g)), name=reader.fq_name)
     assert not fetcher.request("c3po")  # never added: nothing to ask
     fetcher.add("c3po")
     assert wait_until(lambda: fetcher.request("c3po"), 10.0)

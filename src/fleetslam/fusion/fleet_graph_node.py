@@ -153,7 +153,9 @@ class FleetGraphNode:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._subscribed: set[str] = set()
-        self._graph_fetcher = GraphFetcher(node, self.on_graph_update, timeout=self.config.request_timeout)
+        self._graph_fetcher = GraphFetcher(
+            node.create_client, self.on_graph_update, name=node.fq_name, timeout=self.config.request_timeout
+        )
         self._asked: dict[str, float] = {}
         """When each agent's whole graph was last asked for (monotonic s)."""
         self._path_pubs: dict[str, Any] = {}

@@ -5,6 +5,8 @@ start, a link cut) asks the writer for its whole graph. The SLAM node asks its p
 SLAM, the fleet back-end every agent. A service call blocks for up to its timeout, so it runs on a thread of its own,
 never on the middleware's or the executor's, and one request per agent is under way at a time: the gaps a burst of
 lost messages shows are answered by one whole graph, not by one each.
+
+The fetcher is given its node's ``create_client`` (it does not import the middleware: the layering rule).
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from fleetslam.middleware import Node
 from fleetslam.msg.typesys import get_type
 
 log = logging.getLogger(__name__)
@@ -30,10 +31,19 @@ class GraphFetcher:
     an exception in ``on_graph``) is logged; the next gap asks again.
     """
 
-    def __init__(self, node: Node, on_graph: Callable[[str, Any], None], *, timeout: float = 5.0) -> None:
-        self.node = node
+    def __init__(
+        self,
+        create_client: Callable[[str, str], Any],
+        on_graph: Callable[[str, Any], None],
+        *,
+        name: str,
+        timeout: float = 5.0,
+    ) -> None:
+        self.name = name
+        """Who fetches (the node's name), for its threads' names and the log."""
         self.timeout = timeout
         """Seconds a request waits for its answer."""
+        self._create_client = create_client
         self._on_graph = on_graph
         self._clients: dict[str, Any] = {}
         self._in_flight: set[str] = set()
@@ -42,7 +52,7 @@ class GraphFetcher:
     def add(self, agent: str, service: str | None = None) -> None:
         """Make ``agent``'s graph fetchable, from ``service`` (default ``/<agent>/graph/full``)."""
         if agent not in self._clients:
-            self._clients[agent] = self.node.create_client(GET_GRAPH_TYPE, service or f"/{agent}/graph/full")
+            self._clients[agent] = self._create_client(GET_GRAPH_TYPE, service or f"/{agent}/graph/full")
 
     def request(self, agent: str) -> bool:
         """Ask ``agent`` for its whole graph unless a request to it is under way (or it was never added);
@@ -51,9 +61,7 @@ class GraphFetcher:
             if agent in self._in_flight or agent not in self._clients:
                 return False
             self._in_flight.add(agent)
-        threading.Thread(
-            target=self._fetch, args=(agent,), name=f"{self.node.fq_name}/graph-{agent}", daemon=True
-        ).start()
+        threading.Thread(target=self._fetch, args=(agent,), name=f"{self.name}/graph-{agent}", daemon=True).start()
         return True
 
     def in_flight(self, agent: str) -> bool:
@@ -66,7 +74,7 @@ class GraphFetcher:
             response = self._clients[agent].call(get_type(f"{GET_GRAPH_TYPE}_Request")(), timeout=self.timeout)
             self._on_graph(agent, response.graph)
         except Exception as err:  # an agent gone, slow or answering nonsense: the next gap asks again
-            log.info("%s: %s's whole graph could not be fetched: %s", self.node.fq_name, agent, err)
+            log.info("%s: %s's whole graph could not be fetched: %s", self.name, agent, err)
         finally:
             with self._lock:
                 self._in_flight.discard(agent)

@@ -145,7 +145,7 @@ class MappingNode:
         self._graph_updates: list[bytes] = []
         """Graph updates received since the last tick, in order (decoded at the tick)."""
         self.graph = GraphMirror[Any]()
-        self._graph_fetcher = GraphFetcher(node, self._on_full_graph)
+        self._graph_fetcher = GraphFetcher(node.create_client, self._on_full_graph, name=node.fq_name)
         self._graph_fetcher.add(SLAM_GRAPH, "graph/full")
         self._graph_lock = threading.Lock()
         """Guards ``_graph_updates``: the executor appends, the fetch of the whole graph puts it first."""

@@ -223,7 +223,7 @@ class SlamNode:
         self._inter_agent: list[tuple[PeerMatch, int]] = []
         """Closures verified with peers, with the peer's run (epoch) they refer to."""
         self._inter_agent_sent = 0
-        self._graph_fetcher = GraphFetcher(node, self._on_peer_full_graph)
+        self._graph_fetcher = GraphFetcher(node.create_client, self._on_peer_full_graph, name=node.fq_name)
         self.fleet_correction = FleetCorrection()
         """The fleet back-end's placement and corrected keyframes of this agent (with ``follow_fleet``)."""
         self._fleet_lock = threading.Lock()
