@@ -253,10 +253,14 @@ def test_the_real_back_end_straightens_a_drifting_agent_s_map(
 
     offsets = wall_offsets("r2d2")
     assert len(offsets) > 100 and np.abs(offsets - 0.025).max() <= 0.1, np.sort(offsets)[:10]
+    followed_band = float(np.subtract(*np.percentile(offsets, [95, 5])))  # the wall's thickness in the map
     assert wait_until(lambda: len(alone.mapper.scans) == 14 and not alone.mapper.pending, 60.0)
     assert not alone.fleet.active and error(alone) > 0.05  # its own graph, bent: 14 cm between its ends
     offsets = wall_offsets("r2d2_alone")  # its own graph: the wall smeared towards the robot (14 cm at most)
-    assert (np.abs(offsets - 0.025) > 0.1).sum() >= 10, np.sort(offsets)[:20]
+    # (Its band, not a count of voxels beyond a threshold: where the band lies depends on the placement, which the
+    # closures' weights move by centimetres.) Measured: 15.6 cm against the follower's 4.9 cm.
+    alone_band = float(np.subtract(*np.percentile(offsets, [95, 5])))
+    assert alone_band >= followed_band + 0.08, (alone_band, followed_band)
 
 
 def test_malformed_corrections_are_left_out_and_the_map_goes_on(
