@@ -290,8 +290,11 @@ def _save_maps(node: Node, robots: list[str], output: TextIO) -> None:
     request = get_type("fleetslam_msgs/srv/SaveMap_Request")
     for name, service in [*((r, f"/{r}/map/save") for r in robots), ("fleet", "/fleet/map/save")]:
         client = node.create_client("fleetslam_msgs/srv/SaveMap", service)
-        try:
-            response = client.call(request(path=f"{name}.bt"), timeout=30.0)
-            print(f"[demo] map {name}: {response.message} -> {response.path}", file=output, flush=True)
-        except Exception as err:  # a node that never got data answers late or not at all
-            print(f"[demo] map {name} not saved: {err}", file=output, flush=True)
+        client.wait_for_service(10.0)  # a client made now may not see the service yet
+        for attempt in (1, 2):  # a node rebuilding its map on a loaded machine may answer after the first timeout
+            try:
+                response = client.call(request(path=f"{name}.bt"), timeout=30.0)
+                print(f"[demo] map {name}: {response.message} -> {response.path}", file=output, flush=True)
+                break
+            except Exception as err:  # a node that never got data answers late or not at all
+                print(f"[demo] map {name} not saved (attempt {attempt}): {err}", file=output, flush=True)
