@@ -162,3 +162,60 @@ def test_a_stalled_node_does_not_hold_back_its_session(make_context: Callable[..
     # missing as a gap; those before the first one counted are not seen at all (this thread held the GIL).
     assert stats.total_delivered >= 1 and stats.total_delivered + stats.total_dropped <= 3000
     assert flooded.queue_overflows == stats.total_delivered - 1
+
+
+def test_a_flood_does_not_starve_the_nodes_timer_or_its_other_subscriptions(
+    make_context: Callable[..., Context],
+) -> None:
+    talker = Node("talker", context=make_context(), statistics_period_s=0)
+    node = Node("flooded", context=make_context(), statistics_period_s=0)
+    flooding = threading.Event()
+    during = {"ticks": 0, "pings": 0}
+    flood_got = [0]
+
+    def on_flood(msg: Any) -> None:
+        flood_got[0] += 1
+        spin_until = time.perf_counter() + 0.00005  # a callback with some work: the executor is the bottleneck
+        while time.perf_counter() < spin_until:
+            pass
+
+    def on_tick() -> None:
+        if flooding.is_set():
+            during["ticks"] += 1
+
+    def on_ping(msg: Any) -> None:
+        if flooding.is_set():
+            during["pings"] += 1
+
+    flooded = node.create_subscription("std_msgs/msg/String", "/flood", on_flood, QoSProfile(depth=1000))
+    node.create_subscription("std_msgs/msg/String", "/ping", on_ping, QoSProfile(depth=10))
+    node.create_timer(0.01, on_tick)
+    flood = talker.create_publisher("std_msgs/msg/String", "/flood", QoSProfile(history="keep_all"))
+    ping = talker.create_publisher("std_msgs/msg/String", "/ping")
+    assert wait_until(lambda: flood.matched_subscriptions == 1 and ping.matched_subscriptions == 1)
+    time.sleep(0.1)
+    message = String(data="x" * 56)
+
+    def publish() -> None:
+        while flooding.is_set():
+            for _ in range(100):
+                flood.publish(message)
+            time.sleep(0)
+
+    sender = threading.Thread(target=publish)
+    flooding.set()
+    sender.start()
+    try:
+        for i in range(10):
+            time.sleep(0.1)
+            ping.publish(String(data=str(i)))
+        time.sleep(0.2)
+    finally:
+        flooding.clear()
+        sender.join()
+    # The flood kept the executor busy throughout, and the executor took its samples from the ring itself...
+    assert flood_got[0] > 1000
+    assert flooded._pulled > 0
+    # ... a batch at a time: the timer (10 ms) and the other topic took their turns in between.
+    assert during["ticks"] >= 20, during
+    assert during["pings"] >= 8, during
