@@ -315,10 +315,11 @@ class Subscription(Entity):
                 self.queue_overflows += 1
         return self._batched or not full
 
-    def _check(self, sample: zenoh.Sample) -> tuple[zenoh.ZBytes, MessageInfo] | None:
+    def _check(self, sample: zenoh.Sample, count: bool = True) -> tuple[zenoh.ZBytes, MessageInfo] | None:
         # Hot path (every sample, whichever thread takes it from Zenoh): the attachment, the checks, the statistics
-        # and the MessageInfo; None for a sample dropped (counted and logged). Every line here costs a 64-byte
-        # message's throughput (see benchmarks/middleware_throughput.py's table of layers).
+        # (unless the caller counts a batch itself) and the MessageInfo; None for a sample dropped (counted and
+        # logged). Every line here costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's
+        # table of layers).
         received = _time_ns()
         attachment = sample.attachment
         zpayload = sample.payload
@@ -360,7 +361,8 @@ class Subscription(Entity):
             if gid not in types and len(types) >= self.statistics.max_publishers:
                 del types[next(iter(types))]
             types[gid] = type_name
-        self._on_stats(gid, seq, stamp, received, size)
+        if count:
+            self._on_stats(gid, seq, stamp, received, size)
         return zpayload, _new_info(MessageInfo, (stamp, received, seq, gid, size, self.name, type_name))
 
     def _drop(self, gid: bytes | None, size: int, cause: str, message: str, *args: object) -> None:
@@ -409,7 +411,7 @@ class Subscription(Entity):
                         break
                     taken += 1
                     try:
-                        item = check(sample)
+                        item = check(sample, False)
                     except Exception as err:  # whatever arrives, nothing may escape from here
                         self._internal_error(err)
                         continue
@@ -417,6 +419,8 @@ class Subscription(Entity):
                         keep(item)
             except zenoh.ZError:
                 pass  # undeclared, or its session closed: the ring is gone
+            if checked:
+                self._count(checked)
             self._pulled += taken
             if not taken:
                 self._executor_pulls = False
@@ -431,6 +435,22 @@ class Subscription(Entity):
                 break
             deliver(payload, info)
         return taken
+
+    def _count(self, checked: list[tuple[zenoh.ZBytes, MessageInfo]]) -> None:
+        """Count the samples of one pull in the statistics, a run of one publisher's in one call."""
+        gid = checked[0][1].publisher_gid
+        infos = [info for _, info in checked]
+        if all(info[3] == gid for info in infos):  # one publisher (the usual case)
+            self.statistics.on_samples(
+                gid,
+                [info[2] for info in infos],
+                [info[0] for info in infos],
+                [info[1] for info in infos],
+                sum(info[4] for info in infos),
+            )
+            return
+        for stamp, received, seq, publisher_gid, size, *_ in infos:
+            self._on_stats(publisher_gid, seq, stamp, received, size)
 
     def _dispatch(self) -> None:
         with self._pending_lock:
