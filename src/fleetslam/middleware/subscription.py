@@ -95,10 +95,13 @@ def _accepts_info(callback: Callable[..., Any]) -> bool:
 class Subscription(Entity):
     """Receives messages of a topic; the callback runs on the node's executor.
 
-    A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`)
-    on a receive thread of its own, which checks and counts them, queues them (KEEP_LAST ``depth``) and hands them
-    to the executor in batches: Zenoh's threads never wait for Python, and the executor wakes once per batch, not
-    once per sample. When the receive thread falls behind by more than the ring, Zenoh drops the oldest samples
+    A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`):
+    Zenoh's threads never wait for Python. A receive thread of its own waits for the first sample and hands the
+    ring to the idle executor, which then takes the samples itself, checks, counts, decodes them and runs the
+    callback, at most :data:`DRAIN_BATCH` per turn (one thread doing all the Python work of a sample, no hand-off
+    per sample), until it finds the ring empty and the receive thread waits again. While the executor is busy
+    (a long callback, other work) the receive thread checks, counts and queues the samples itself (KEEP_LAST
+    ``depth``), so the callback gets the newest. When neither keeps up with the ring, Zenoh drops the oldest samples
     before they are counted: /statistics sees them as sequence gaps (``dropped``), not as ``queue_overflows``.
     KEEP_ALL and transient-local subscriptions get each sample from Zenoh's callback thread (a FIFO channel that
     holds back reception when full) and hand it to the executor one by one.
@@ -157,7 +160,9 @@ class Subscription(Entity):
         self._handback = threading.Event()
         """Set by the executor when it found the ring empty: the receive thread waits in ``recv`` again."""
         self._pulled = 0
-        """Samples the executor took from the ring (the parked receive thread's sign of progress)."""
+        """Samples the executor took from the ring."""
+        self._turns = 0
+        """Drains and pulls the executor ran (the parked receive thread's sign of its progress)."""
         self._try_recv: Callable[[], zenoh.Sample | None] | None = None
         self._receiver: threading.Thread | None = None
         """The receive thread of a batched subscription (it ends when the subscriber is undeclared)."""
@@ -210,54 +215,65 @@ class Subscription(Entity):
         return self.name
 
     def _receive_loop(self, handler: zenoh.handlers.Handler[zenoh.Sample]) -> None:
-        # The receive thread of a batched subscription. ``recv`` waits without the GIL. A sample that finds the
-        # executor idle (no drain of this subscription posted) makes this thread hand the ring to the executor and
-        # post a drain: the executor then takes the samples itself (``try_recv``), checks, counts, decodes them and
-        # runs the callback, one thread doing all the Python work, while this one sleeps (``_park``) until the
-        # executor finds the ring empty. While a posted drain waits for a busy executor, this thread takes the
-        # samples, checks, counts and queues them itself (without giving up the GIL while more are queued), so
-        # KEEP_LAST keeps the newest and the statistics count them as they come.
+        # The receive thread of a batched subscription. ``recv`` waits without the GIL (and gives it up even when a
+        # sample is waiting; ``try_recv`` does not). A lone sample is checked, counted and queued here and a drain
+        # posted to the executor. When more are waiting (a flood), this thread hands the executor the ring: the
+        # executor delivers what is queued, then takes the samples itself, checks, counts, decodes them and runs the
+        # callback, one thread doing all the Python work, while this one sleeps (``_park``) until the executor
+        # finds the ring empty. An executor that makes no progress for PARK_S (a long callback, other work) gets
+        # the ring taken back: until it runs a drain again, this thread takes what is waiting itself (without
+        # giving up the GIL), so KEEP_LAST keeps the newest and the statistics count the samples as they come.
         recv, try_recv, take = handler.recv, handler.try_recv, self._take
         self._try_recv = try_recv
-        ring_lock, handback, pending = self._ring_lock, self._handback, self._pending
+        ring_lock, handback, pending, post, drain = (
+            self._ring_lock, self._handback, self._pending, self._post, self._drain_bound
+        )  # fmt: skip
+        stalled_at = -1
+        """The executor's turns when it last stalled with the ring (it gets the ring again once it moves on)."""
         try:
             while not self._destroyed:
                 take(recv())
-                if self._posted:  # the executor has not started the drain yet
+                sample = try_recv()
+                if sample is not None:
+                    take(sample)
+                    if self._turns != stalled_at:
+                        with ring_lock:  # a drain may start at once: it must find the ring its own
+                            handback.clear()
+                            self._executor_pulls = True
+                        if not self._posted:
+                            self._posted = True
+                            post(drain)
+                        if self._park():
+                            stalled_at = self._turns
+                        continue
                     for _ in range(RECEIVE_RING_CAPACITY):
                         sample = try_recv()
                         if sample is None:
                             break
                         take(sample)
-                    if self._posted:
-                        continue
-                if not pending:  # dropped, or a running drain took it
-                    continue
-                with ring_lock:  # the drain may start at once: it must find the ring its own
-                    handback.clear()
-                    self._executor_pulls = True
-                self._posted = True
-                self._post(self._drain_bound)
-                self._park()
+                if pending and not self._posted:
+                    self._posted = True
+                    post(drain)
         except zenoh.ZError:
             pass  # undeclared, or its session closed: the ring is gone
         except Exception as err:  # nothing may end a node's reception silently
             log.warning("%s: receive thread stopped: %s: %s", self.topic, type(err).__name__, err)
 
-    def _park(self) -> None:
-        """Sleep while the executor takes the samples: until it hands the ring back, or takes none for PARK_S (a
-        long callback, other work of the node), when this thread takes the ring back."""
+    def _park(self) -> bool:
+        """Sleep while the executor takes the samples: until it hands the ring back (False), or makes no progress
+        for PARK_S (a long callback, other work of the node), when this thread takes the ring back (True)."""
         handback, ring_lock = self._handback, self._ring_lock
         while not self._destroyed:
-            seen = self._pulled
+            seen = self._turns
             if handback.wait(PARK_S):
-                return
+                return False
             with ring_lock:
                 if not self._executor_pulls:
-                    return
-                if self._pulled == seen:
+                    return False
+                if self._turns == seen:
                     self._executor_pulls = False
-                    return
+                    return True
+        return False
 
     def _take(self, sample: zenoh.Sample) -> None:
         """Check, count and queue a sample (batched subscriptions: posting is the caller's)."""
@@ -375,6 +391,7 @@ class Subscription(Entity):
         # the ring itself; at most DRAIN_BATCH per turn, so the node's other callbacks (timers, services, other
         # topics) still take their turns under a flood.
         self._posted = False  # cleared before looking at the queue: a sample queued after this posts again
+        self._turns += 1
         pending, lock, deliver = self._pending, self._pending_lock, self._deliver
         budget = DRAIN_BATCH
         while budget > 0:
@@ -422,6 +439,7 @@ class Subscription(Entity):
             if checked:
                 self._count(checked)
             self._pulled += taken
+            self._turns += 1
             if not taken:
                 self._executor_pulls = False
                 self._handback.set()
