@@ -445,7 +445,8 @@ class Subscription(Entity):
                 self._handback.set()
         overflow = len(checked) - (self._pending.maxlen or len(checked))
         if overflow > 0:
-            self.queue_overflows += overflow
+            with self._pending_lock:  # the receive thread counts its own under it
+                self.queue_overflows += overflow
             del checked[:overflow]
         deliver = self._deliver
         for payload, info in checked:
