@@ -141,7 +141,7 @@ FLEET_POSE = Topic("slam/fleet_pose", "geometry_msgs/msg/PoseStamped", 5,
                    flow="slam → station, other agents")  # fmt: skip
 FLEET_PATH = Topic("fleet_path", "nav_msgs/msg/Path", 1, "transient_local",
                    content="keyframes corrected by the joint optimisation, in the fleet frame; while subscribed",
-                   flow="fleet back-end → station, viewers, mapping (follow_fleet)")  # fmt: skip
+                   flow="fleet back-end → station, viewers, mapping and slam (follow_fleet)")  # fmt: skip
 SLAM_DIAGNOSTICS = Topic(
     "slam/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
     content="frames received/processed/dropped, relocalisations, loop closures, timings; every processed frame",
@@ -168,7 +168,7 @@ FINDINGS = Topic("/fleet/findings", "fleetslam_msgs/msg/FindingArray", 1, "trans
                  flow="findings service → station, report")  # fmt: skip
 FLEET_PLACEMENTS = Topic("/fleet/placements", "tf2_msgs/msg/TFMessage", 1, "transient_local",
                          content="fleet → <agent>/map of every agent the joint optimisation placed, after each solve",
-                         flow="fleet back-end → fleet map, station, mapping (follow_fleet)")  # fmt: skip
+                         flow="fleet back-end → fleet map, station, mapping and slam (follow_fleet)")  # fmt: skip
 FLEET_BACKEND_DIAGNOSTICS = Topic(
     "/fleet/backend/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 5,
     content="agents placed, closures kept/rejected, variables, solve time; after each solve",

@@ -138,3 +138,29 @@ def test_the_fleet_map_prefers_the_back_end_placement(make_context: Callable[...
     # The back-end no longer places r2d2 (it restarted): its SLAM's own placement counts again.
     placements.publish(get_type("tf2_msgs/msg/TFMessage")(transforms=[]))
     assert wait_until(lambda: (fleet._apply_placements(), fleet.placed["r2d2"][0, 3] == 11.0)[1], 10.0)
+
+
+def test_a_path_is_sent_again_no_sooner_than_its_bytes_allow(make_context: Callable[..., Context]) -> None:
+    import time
+
+    from fleetslam.msg.typesys import serialize
+
+    c3po = _Agent(make_context("c3po"), _truth("c3po"))
+    budget = 300.0  # bytes per second: a path of 10 keyframes (~1 kB) may go out again after ~3 s
+    backend = FleetGraphNode(Node("fleet_backend", context=make_context()),
+                             FleetGraphConfig(rate=10.0, agents=["c3po"], path_bytes_per_s=budget))  # fmt: skip
+    arrivals: list[tuple[float, Any]] = []
+    viewer = Node("viewer", context=make_context())
+    viewer.create_subscription(topics.FLEET_PATH.type, topics.FLEET_PATH.of("c3po"),
+                               lambda msg: arrivals.append((time.monotonic(), msg)),
+                               topics.FLEET_PATH.qos(depth=5))  # fmt: skip
+    assert wait_until(lambda: bool(backend._path_pubs["c3po"].matched_subscriptions), 10.0)
+    c3po.publish(range(10))
+    assert wait_until(lambda: bool(arrivals), 20.0)
+    first_at, first = arrivals[0]
+    assert len(first.poses) == 10
+    c3po.publish(range(10, 20))  # new keyframes: the path is due again, but only once its bytes allow
+    assert wait_until(lambda: len(backend.solution.placements["c3po"].poses) == 20, 10.0)  # type: ignore[union-attr]
+    assert wait_until(lambda: len(arrivals[-1][1].poses) == 20, 20.0)
+    assert len(arrivals) == 2
+    assert arrivals[1][0] - first_at >= 0.9 * len(serialize(first, "nav_msgs/msg/Path")) / budget

@@ -175,9 +175,9 @@ def test_trajectory_service_returns_every_processed_frame_on_the_optimised_keyfr
     as its camera frame, on its keyframe's optimised pose (what an offline run's result holds), near the truth."""
     from fleetslam.datasets.base import Intrinsics
     from fleetslam.msg.conversions import pose_matrix
-    from fleetslam.msg.typesys import get_type, header, ns_from_stamp
+    from fleetslam.msg.typesys import get_type, ns_from_stamp
 
-    from .textured_room import make_textures, render
+    from .textured_room import image_messages, make_textures
 
     slam = SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig())
     client = Node("operator", context=make_context()).create_client(
@@ -192,21 +192,12 @@ def test_trajectory_service_returns_every_processed_frame_on_the_optimised_keyfr
     info = message_from_dict("sensor_msgs/msg/CameraInfo", {"width": 80, "height": 60})
     info.k[:] = [80.0, 0.0, 40.0, 0.0, 80.0, 30.0, 0.0, 0.0, 1.0]
     slam.on_camera_info(info)
-    image = get_type("sensor_msgs/msg/Image")
     textures = make_textures(np.random.default_rng(0))
     base_camera = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
     truth = [pose_from_planar(0.02 * k, 0.0, 0.0) @ base_camera for k in range(12)]  # 2 cm forward per frame
     stamps_ns = [1_000_000_000 + k * 100_000_000 for k in range(len(truth))]
     for pose, stamp_ns in zip(truth, stamps_ns, strict=True):
-        rgb, depth = render(pose, intrinsics, textures)
-        pair = FramePair(
-            stamp_ns,
-            image(header=header("camera", stamp_ns), height=60, width=80, encoding="rgb8", is_bigendian=0, step=240,
-                  data=np.ascontiguousarray(rgb).reshape(-1)),
-            image(header=header("camera", stamp_ns), height=60, width=80, encoding="32FC1", is_bigendian=0,
-                  step=320, data=np.ascontiguousarray(depth, np.float32).view(np.uint8).reshape(-1)),
-            time.monotonic(),
-        )  # fmt: skip
+        pair = FramePair(stamp_ns, *image_messages(pose, stamp_ns, intrinsics, textures), time.monotonic())
         with slam._lock:
             assert slam.process(pair) is not None
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +45,23 @@ def render(
     _, depth = _raycast(pose, k, textures)
     gray = cv2.resize(gray_fine, (k.width, k.height), interpolation=cv2.INTER_AREA)
     return np.repeat(gray[:, :, None], 3, axis=2), depth
+
+
+def image_messages(
+    pose: NDArray[np.float64], stamp_ns: int, intrinsics: Intrinsics, textures: list[NDArray[np.uint8]]
+) -> tuple[Any, Any]:
+    """:func:`render`'s view as the camera topics carry it: ``sensor_msgs/Image`` rgb8 and 32FC1 (metres)."""
+    from fleetslam.msg.typesys import get_type, header
+
+    rgb, depth = render(pose, intrinsics, textures)
+    image = get_type("sensor_msgs/msg/Image")
+    width, height = intrinsics.width, intrinsics.height
+    return (
+        image(header=header("camera", stamp_ns), height=height, width=width, encoding="rgb8", is_bigendian=0,
+              step=3 * width, data=np.ascontiguousarray(rgb).reshape(-1)),
+        image(header=header("camera", stamp_ns), height=height, width=width, encoding="32FC1", is_bigendian=0,
+              step=4 * width, data=np.ascontiguousarray(depth, np.float32).view(np.uint8).reshape(-1)),
+    )  # fmt: skip
 
 
 def _raycast(

@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import threading
-import time
 from pathlib import Path
 
 
@@ -64,6 +61,7 @@ def run_rviz_config(args: argparse.Namespace) -> int:
 
 
 def run_ros1(args: argparse.Namespace) -> int:
+    from fleetslam.cli.common import stop_on_sigterm, wait_until_stopped
     from fleetslam.middleware import Context, Node
     from fleetslam.ros1.bridge import Ros1Bridge, TopicRule
     from fleetslam.ros1.node import Ros1Node, master_from_env
@@ -73,9 +71,7 @@ def run_ros1(args: argparse.Namespace) -> int:
     services_to_ros1 = [TopicRule.parse(r) for r in args.service_to_ros1 + ["*"] * args.all]
     services_from_ros1 = [TopicRule.parse(r) for r in args.service_from_ros1 + ["*"] * args.all]
     master, host = master_from_env(os.environ)
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():  # signals reach the main thread only
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_sigterm()
     with (
         Ros1Node(args.name, master_uri=master, host=host) as ros1,
         Context() as ctx,
@@ -91,10 +87,5 @@ def run_ros1(args: argparse.Namespace) -> int:
         ),
     ):
         print(f"bridge {node.fq_name}: fleet <-> ROS 1 master {master} (Ctrl-C to stop)", flush=True)
-        deadline = None if args.duration is None else time.monotonic() + args.duration
-        try:
-            while not stop.wait(0.2) and (deadline is None or time.monotonic() < deadline):
-                pass
-        except KeyboardInterrupt:
-            pass
+        wait_until_stopped(stop, args.duration)
     return 0

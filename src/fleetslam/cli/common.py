@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -31,6 +33,23 @@ def wait_for_graph(node: Node, predicate: Callable[[], bool], timeout_s: float =
 
 def to_yaml(data: Any) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=False, width=120)
+
+
+def stop_on_sigterm() -> threading.Event:
+    """An event SIGTERM sets (a supervisor's or systemd's stop), so that a command ends as on Ctrl-C. Signals reach
+    the main thread only: called on another (a test running the command), it only makes the event."""
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    return stop
+
+
+def wait_until_stopped(stop: threading.Event, duration: float | None = None) -> None:
+    """Block until ``stop`` is set (SIGTERM), Ctrl-C, or ``duration`` seconds passed (None: no limit)."""
+    deadline = None if duration is None else time.monotonic() + duration
+    with contextlib.suppress(KeyboardInterrupt):
+        while not stop.wait(0.2) and (deadline is None or time.monotonic() < deadline):
+            pass
 
 
 def settle(seconds: float = 0.3) -> None:

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
-import time
 
+from fleetslam.cli.common import stop_on_sigterm, wait_until_stopped
 from fleetslam.config import load_config
 from fleetslam.middleware import Context, Node
 from fleetslam.robot.autopilot import ROUTES, get_route
@@ -51,18 +49,11 @@ def run_base(args: argparse.Namespace) -> int:
     from fleetslam.robot.node import BaseControllerNode
 
     config = load_config(RobotConfig, args.config, overrides=args.set, env_prefix="robot")
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():  # signals reach the main thread only
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_sigterm()
     with Context(namespace=_namespace(args.robot)) as ctx, Node(args.name, context=ctx) as node:
         BaseControllerNode(node, MotorModelDrive.from_config(config), config=config)
         print(f"base controller {node.fq_name}: cmd_vel -> {args.drive} drive (Ctrl-C to stop)", flush=True)
-        deadline = None if args.duration is None else time.monotonic() + args.duration
-        try:
-            while not stop.wait(0.2) and (deadline is None or time.monotonic() < deadline):
-                pass
-        except KeyboardInterrupt:
-            pass
+        wait_until_stopped(stop, args.duration)
     return 0
 
 

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
 from pathlib import Path
 
+from fleetslam.cli.common import stop_on_sigterm, wait_until_stopped
 from fleetslam.middleware.router import DEFAULT_ROUTER_LISTEN, Router
 
 
@@ -26,15 +25,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_sigterm()
     listen = args.listen or (None if args.security else list(DEFAULT_ROUTER_LISTEN))
     with Router(listen, connect=args.connect, security=args.security) as router:
         print(f"fleetslam router {router.zid} listening on {', '.join(router.listen)} (Ctrl-C to stop)", flush=True)
-        try:
-            while not stop.wait(0.5):
-                pass
-        except KeyboardInterrupt:
-            pass
+        wait_until_stopped(stop)
     print("router stopped", flush=True)
     return 0

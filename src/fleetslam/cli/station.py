@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import signal
-import threading
 from pathlib import Path
 
+from fleetslam.cli.common import stop_on_sigterm, wait_until_stopped
 from fleetslam.errors import ConfigError
 from fleetslam.middleware import Context
 from fleetslam.station.access import ConsoleAccess
@@ -44,8 +43,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_sigterm()
     limits = TeleopLimits(max_linear=args.max_linear, max_angular=args.max_angular)
     try:
         access = ConsoleAccess.create(args.token, args.allow_origin)
@@ -57,8 +55,7 @@ def run(args: argparse.Namespace) -> int:
                 StationServer(None, host=args.host, port=args.port, limits=limits, access=access, session=args.session)
             )
             print(f"operator console (reviewing {args.session}): {server.url}", flush=True)
-            with contextlib.suppress(KeyboardInterrupt):
-                stop.wait()
+            wait_until_stopped(stop)
             return 0
         ctx = stack.enter_context(Context())
         if args.findings is not None:
@@ -67,6 +64,5 @@ def run(args: argparse.Namespace) -> int:
             stack.enter_context(FindingsNode(ctx, args.findings))
         server = stack.enter_context(StationServer(ctx, host=args.host, port=args.port, limits=limits, access=access))
         print(f"operator console: {server.url}", flush=True)
-        with contextlib.suppress(KeyboardInterrupt):
-            stop.wait()
+        wait_until_stopped(stop)
     return 0

@@ -13,7 +13,7 @@ placed; the fleet map node prefers these to the agents' own ``slam/fleet_transfo
 Nothing flows back to the agents' SLAM: an agent keeps mapping in its own frame whatever happens here (cut off,
 back-end restarted), and the back-end catches up from the agents' graphs when they come back. An agent's mapping node
 may follow its ``fleet_path`` (``follow_fleet``: its keyframes integrated where the solve put them, see
-:mod:`fleetslam.mapping.fleet_correction`), and goes on from its own graph when the paths stop.
+:mod:`fleetslam.fusion.fleet_correction`), and goes on from its own graph when the paths stop.
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ from fleetslam.errors import MessageError
 from fleetslam.fusion.consistency import ConsistencyTolerance
 from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolution
 from fleetslam.fusion.graph_exchange import GraphUpdate, graph_update_of
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.middleware import Node
 from fleetslam.msg.conversions import pose_matrix, pose_msgs, transform_msg
-from fleetslam.msg.typesys import get_type, header
+from fleetslam.msg.typesys import get_type, header, serialize
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,11 @@ class FleetGraphConfig(ConfigModel):
     """The consistent set must be this many times larger than any set inconsistent with it (repeated structure)."""
     path_tolerance: float = Field(default=0.005, ge=0.0)
     """An agent's ``fleet_path`` is sent again when it has new keyframes or one moved more than this (m)."""
+    path_bytes_per_s: float = Field(default=20_000.0, gt=0.0)
+    """Most bytes per second of one agent's ``fleet_path``. A path goes out whole (about 80 B per keyframe): it is
+    sent again no sooner than its size divided by this after the last send (every 1 s at 250 keyframes, every 16 s at
+    4000), so that a long run's paths do not grow the traffic without bound. A follower places the keyframes newer
+    than the path it holds from the newest corrected one (the mapping node's ``follow_fleet``)."""
     request_timeout: float = Field(default=5.0, gt=0.0)
     """How long (s) a request for an agent's whole graph may take."""
 
@@ -147,12 +153,14 @@ class FleetGraphNode:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._subscribed: set[str] = set()
-        self._clients: dict[str, Any] = {}
-        self._requests: set[str] = set()
+        self._graph_fetcher = GraphFetcher(
+            node.create_client, self.on_graph_update, name=node.fq_name, timeout=self.config.request_timeout
+        )
         self._asked: dict[str, float] = {}
         """When each agent's whole graph was last asked for (monotonic s)."""
         self._path_pubs: dict[str, Any] = {}
-        self._path_published: dict[str, tuple[list[int], np.ndarray]] = {}
+        self._path_published: dict[str, tuple[list[int], np.ndarray, float]] = {}
+        """Per agent, the keyframe ids and positions of the path last sent and when the next may go out."""
         """Per agent, the keyframe ids and positions of the path last sent."""
         placements = topics.FLEET_PLACEMENTS
         self.placements_pub = node.create_publisher(placements.type, placements.name, placements.qos())
@@ -188,7 +196,7 @@ class FleetGraphNode:
         updates = topics.GRAPH_UPDATES
         self.node.create_subscription(updates.type, updates.of(agent), partial(self.on_graph_update, agent),
                                       updates.qos(depth=updates.depth))  # fmt: skip
-        self._clients[agent] = self.node.create_client("fleetslam_msgs/srv/GetGraph", f"/{agent}/graph/full")
+        self._graph_fetcher.add(agent)
         path = topics.FLEET_PATH
         self._path_pubs[agent] = self.node.create_publisher(path.type, path.of(agent), path.qos())
         log.info("fleet back-end: following %s", agent)
@@ -213,22 +221,8 @@ class FleetGraphNode:
 
     def _request_graph(self, agent: str) -> None:
         """Ask ``agent`` for its whole graph, off the worker (one request per agent at a time)."""
-        if agent in self._requests or agent not in self._clients:
-            return
-        self._requests.add(agent)
-        self.counts["graph_requests"] += 1
-
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._clients[agent].call(request, timeout=self.config.request_timeout)
-                self.on_graph_update(agent, response.graph)
-            except Exception as err:  # an agent gone or slow: the next gap asks again
-                log.info("fleet back-end: %s's graph could not be fetched: %s", agent, err)
-            finally:
-                self._requests.discard(agent)
-
-        threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{agent}", daemon=True).start()
+        if self._graph_fetcher.request(agent):
+            self.counts["graph_requests"] += 1
 
     # -- work ---------------------------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -321,12 +315,14 @@ class FleetGraphNode:
     def publish_paths(self) -> None:
         """Each placed agent's corrected keyframes, to whoever subscribes, when it has keyframes not sent yet or one
         of them moved more than ``path_tolerance`` since its path was last sent (a solve nudges every keyframe by
-        fractions of a millimetre; resending 32 paths for that would cost more than the solve)."""
+        fractions of a millimetre; resending 32 paths for that would cost more than the solve), within
+        ``path_bytes_per_s``."""
         if self.solution is None:
             return
         frame = self.config.frame_id
         pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
         path_type = get_type("nav_msgs/msg/Path")
+        now = time.monotonic()
         for agent, placement in self.solution.placements.items():
             publisher = self._path_pubs.get(agent)
             if publisher is None or not publisher.matched_subscriptions:
@@ -334,15 +330,15 @@ class FleetGraphNode:
             ids = sorted(placement.poses)
             positions = np.array([placement.poses[i][:3, 3] for i in ids])
             sent = self._path_published.get(agent)
-            if (
-                sent is not None
-                and sent[0] == ids
-                and (not len(ids) or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance)
+            if sent is not None and (
+                now < sent[2]
+                or (sent[0] == ids and (not ids or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance))
             ):
                 continue
             stamped = [
                 pose_stamped(header=header(frame, round(placement.stamps[i] * 1e9)), pose=pose)
                 for i, pose in zip(ids, pose_msgs([placement.poses[i] for i in ids]), strict=True)
             ]
-            publisher.publish(path_type(header=header(frame, self.node.now_ns()), poses=stamped))
-            self._path_published[agent] = (ids, positions)
+            data = serialize(path_type(header=header(frame, self.node.now_ns()), poses=stamped), "nav_msgs/msg/Path")
+            publisher.publish_raw(data)
+            self._path_published[agent] = (ids, positions, now + len(data) / self.config.path_bytes_per_s)

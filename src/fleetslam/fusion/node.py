@@ -14,6 +14,7 @@ while someone subscribes to it. Service ``/fleet/map/save`` (SaveMap) writes the
 from __future__ import annotations
 
 import logging
+import threading
 from functools import partial
 from typing import Any
 
@@ -81,13 +82,14 @@ class FleetMapNode:
             self.fleet.set_transform(agent, self.placed[agent])
         self._subscribed: set[str] = set()
         self._latest: dict[str, bytes] = {}
+        """Per agent, the latest map message (CDR) not fused yet."""
+        self._fuse_lock = threading.Lock()
         self._pending_placement: dict[str, np.ndarray] = {}
         """Per agent, the newest published placement not applied yet (applied at the next tick)."""
         self._own_placement: dict[str, np.ndarray] = {}
         """Per agent, the newest placement its own SLAM published (used while the back-end does not place it)."""
         self.backend_placed: set[str] = set()
         """Agents the fleet back-end places (their SLAM's own placement is then ignored)."""
-        """Per agent, the latest map message (CDR) not fused yet."""
         self._version = 0
         self._published = {"occupied": 0, "octomap": 0}
         self._pacer = PublishPacer(self.config.max_publish_load)
@@ -188,12 +190,17 @@ class FleetMapNode:
 
     def fuse_pending(self) -> None:
         """Apply new placements, then fuse the agents' latest maps into the fleet map (only what changed in them);
-        the map of an agent not placed yet waits (with ``require_placement``)."""
+        the map of an agent not placed yet waits (with ``require_placement``). Callable from any thread (the tick,
+        the save service, a test): one call fuses at a time, so a caller returns with what had arrived fused."""
+        with self._fuse_lock:
+            self._fuse_pending()
+
+    def _fuse_pending(self) -> None:
         self._apply_placements()
         pending, self._latest = self._latest, {}
         if self.config.require_placement:
             for agent in [a for a in pending if a not in self.placed]:
-                self._latest[agent] = pending.pop(agent)
+                self._latest.setdefault(agent, pending.pop(agent))  # a newer map may have landed meanwhile
         template = self.fleet.fused()
         for agent, data in sorted(pending.items()):
             msg = deserialize(data, "octomap_msgs/msg/Octomap")

@@ -138,9 +138,11 @@ def sim_processes(
     for robot in robots:
         agent_env = {**env, "FLEETSLAM_AGENT": robot}
         peers = "[" + ",".join(r for r in robots if r != robot) + "]"
-        # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend.
+        # One BLAS thread: the SLAM node's matrices are small, and on two cores extra threads only contend. The
+        # robot's place in the fleet frame follows the fleet back-end (below) once it has placed it.
         processes.append(ProcessSpec(label=f"{robot}/slam", host="localhost",
-                                     argv=fleetslam_argv("slam", "node", "--set", f"peers={peers}", "--set", maps_dir),
+                                     argv=fleetslam_argv("slam", "node", "--set", f"peers={peers}", "--set", maps_dir,
+                                                         "--set", "follow_fleet=true"),
                                      environment={**agent_env, "OPENBLAS_NUM_THREADS": "1"},
                                      restart=RestartPolicy()))  # fmt: skip
         # The map follows the fleet back-end's corrections of its keyframes (the back-end runs below): the fleet

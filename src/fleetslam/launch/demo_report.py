@@ -562,9 +562,10 @@ def plot_bandwidth(result: DemoResult) -> Path | None:
     ax.set_ylabel("bandwidth (kB/s)")
     ax.set_title("Bandwidth per topic (from /statistics)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    # Beside the axes, in as many columns as it takes: a fleet's dozens of topic/subscriber pairs inside the axes
+    # hid the curves and left tight_layout no room.
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), ncol=1 + len(series) // 24)
     path = result.out_dir / "bandwidth.png"
-    fig.savefig(path)
+    fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path

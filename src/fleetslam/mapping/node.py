@@ -12,7 +12,7 @@ current map at the next tick). Services: ``map/save`` (SaveMap), ``map/clear_bbx
 
 With ``follow_fleet`` it also subscribes its agent's ``fleet_path`` and ``/fleet/placements`` (the fleet back-end's
 corrected keyframes and placement; the newest of each decoded at the next tick) and integrates each keyframe where
-the back-end put it, expressed in the agent's own map frame (:mod:`fleetslam.mapping.fleet_correction`); keyframes
+the back-end put it, expressed in the agent's own map frame (:mod:`fleetslam.fusion.fleet_correction`); keyframes
 the back-end does not know yet follow the agent's own graph from the newest corrected one. Keyframes that moved
 more than ``fleet_move_tolerance`` are integrated again as after the agent's own optimisation (at most every
 ``reintegrate_period``).
@@ -36,19 +36,22 @@ from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.errors import MessageError, UnsafePathError
+from fleetslam.fusion.fleet_correction import FleetCorrection, stamp_key
 from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
-from fleetslam.geometry import quat_to_matrix
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.mapping.config import MappingConfig
-from fleetslam.mapping.fleet_correction import FleetCorrection, stamp_key
 from fleetslam.mapping.keyframe_mapper import KeyframeMapper, depth_to_points
 from fleetslam.mapping.octomap_io import octomap_message_fields
 from fleetslam.mapping.products import cube_list_markers, project_occupancy_grid
 from fleetslam.middleware import Node, Publisher
-from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix, transform_matrix
+from fleetslam.msg.conversions import pointcloud2_msg, pose_matrix
 from fleetslam.msg.typesys import deserialize, get_type, header, message_from_dict, ns_from_stamp, serialize
 from fleetslam.save_paths import save_path
 
 log = logging.getLogger(__name__)
+
+SLAM_GRAPH = "slam"
+"""The one graph a mapping node fetches whole: its own SLAM's (``graph/full`` in its namespace)."""
 
 
 class MappingNodeConfig(ConfigModel):
@@ -81,7 +84,7 @@ class MappingNodeConfig(ConfigModel):
     """Default file name of the map/save service, inside ``maps_dir`` (``.bt`` binary or ``.ot`` full octree)."""
     follow_fleet: bool = False
     """Integrate the keyframes where the fleet back-end's joint optimisation put them (``fleet_path`` and
-    ``/fleet/placements``, expressed in this agent's map frame; see :mod:`fleetslam.mapping.fleet_correction`)
+    ``/fleet/placements``, expressed in this agent's map frame; see :mod:`fleetslam.fusion.fleet_correction`)
     instead of where the agent's own graph has them, so that the fleet map, which lands this map by one rigid
     transform, has no doubled walls where the agent's own graph is bent. Keyframes the back-end has not corrected
     (newer, or the link to it cut) follow the agent's own graph from the newest corrected one; with no back-end
@@ -142,8 +145,8 @@ class MappingNode:
         self._graph_updates: list[bytes] = []
         """Graph updates received since the last tick, in order (decoded at the tick)."""
         self.graph = GraphMirror[Any]()
-        self._graph_client = node.create_client("fleetslam_msgs/srv/GetGraph", "graph/full")
-        self._graph_request: threading.Thread | None = None
+        self._graph_fetcher = GraphFetcher(node.create_client, self._on_full_graph, name=node.fq_name)
+        self._graph_fetcher.add(SLAM_GRAPH, "graph/full")
         self._graph_lock = threading.Lock()
         """Guards ``_graph_updates``: the executor appends, the fetch of the whole graph puts it first."""
         self._version = 0
@@ -253,24 +256,9 @@ class MappingNode:
         """Take the back-end's placements (``tf2_msgs/TFMessage``) or this agent's corrected path
         (``nav_msgs/Path``); a malformed one raises ValueError and changes nothing."""
         if kind == "placements":
-            for transform in msg.transforms:
-                if str(transform.child_frame_id) == self._fleet_child:
-                    pose = transform_matrix(transform.transform)
-                    if self.fleet.set_placement(pose, str(transform.header.frame_id)):
-                        self._fleet_changed = True
-            return  # an agent the back-end no longer places keeps its last placement: nothing waits for it
-        poses = msg.poses
-        values = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z, p.pose.orientation.x,
-                            p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w) for p in poses],
-                          dtype=np.float64).reshape(-1, 7)  # fmt: skip
-        if not np.isfinite(values).all() or (np.linalg.norm(values[:, 3:], axis=1) < 1e-6).any():
-            raise ValueError("a pose is not finite, or its quaternion is zero")
-        matrices = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
-        if len(values):
-            matrices[:, :3, :3] = quat_to_matrix(values[:, 3:])
-            matrices[:, :3, 3] = values[:, :3]
-        stamps = np.array([ns_from_stamp(p.header.stamp) for p in poses], dtype=np.int64)
-        self.fleet.set_path(stamps, matrices, str(msg.header.frame_id))
+            self._fleet_changed |= self.fleet.take_placements(msg, self._fleet_child)
+            return
+        self.fleet.take_path(msg)
         self._fleet_changed = True
 
     def _hand_corrected_poses(self) -> None:
@@ -295,21 +283,12 @@ class MappingNode:
 
     def _request_graph(self) -> None:
         """SLAM's whole graph (``graph/full``), fetched off the executor; applied at a later tick."""
-        if self._graph_request is not None and self._graph_request.is_alive():
-            return
+        self._graph_fetcher.request(SLAM_GRAPH)
 
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._graph_client.call(request, timeout=5.0)
-                data = serialize(response.graph, "fleetslam_msgs/msg/KeyframeGraph")
-                with self._graph_lock:
-                    self._graph_updates.insert(0, data)
-            except Exception as err:  # SLAM not up yet, or gone: the next gap asks again
-                log.info("whole graph not fetched: %s", err)
-
-        self._graph_request = threading.Thread(target=ask, name=f"{self.node.fq_name}/graph", daemon=True)
-        self._graph_request.start()
+    def _on_full_graph(self, _: str, graph: Any) -> None:
+        data = serialize(graph, "fleetslam_msgs/msg/KeyframeGraph")
+        with self._graph_lock:
+            self._graph_updates.insert(0, data)
 
     def on_timer(self) -> None:
         with self._graph_lock:

@@ -40,7 +40,9 @@ from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
 from fleetslam.errors import MessageError, ServiceError, UnsafePathError
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
+from fleetslam.fusion.fleet_correction import FleetCorrection
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_of
+from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.fusion.keyframe_summary import KeyframeSummary, summarize, summary_fields, summary_from_message
 from fleetslam.fusion.summary_catchup import MAX_REQUEST_IDS, SummaryStore
 from fleetslam.geometry import invert, rotation_angle
@@ -122,6 +124,15 @@ class SlamNodeConfig(ConfigModel):
     fleet_transform_change: float = Field(default=0.02, gt=0.0)
     """``slam/fleet_transform`` is published again when the placement moved more than this (m; a tenth of it in
     radians): each publication makes the fleet map re-land this agent's whole map."""
+    follow_fleet: bool = False
+    """Take the fleet back-end's word (``fleetslam fleet backend``, the joint optimisation of every agent's graph)
+    for where this agent is in the fleet frame, once it has placed the agent: ``fleet → <agent>/map`` (``tf``,
+    ``slam/fleet_transform``) is the back-end's placement (``/fleet/placements``), and ``slam/fleet_pose`` the camera
+    moved as the back-end corrected the agent's newest corrected keyframe (``fleet_path``; followed once keyframes of
+    the current run are corrected), so the agent sits where the fleet map and its own map (the mapping node's
+    ``follow_fleet``) put what it sees. The agent's graph, its
+    localisation (``slam/odom``, ``map → odom``) and its map frame stay its own: cut off from the back-end it goes on
+    from the last correction, and a back-end that never places it changes nothing (its own placement is used)."""
 
 
 def _valid_pose(convert: Callable[[], np.ndarray]) -> np.ndarray | None:
@@ -203,6 +214,8 @@ class SlamNode:
         self.fleet_transform: np.ndarray | None = None
         """``T_fleet_map`` of this agent, once placed."""
         self._fleet_published = (0.0, np.zeros((4, 4)))
+        self._followed_backend = False
+        """Whether the fleet back-end's placement has been followed yet (``follow_fleet``; logged once)."""
         self._constraints: list[Any] = []
         """What the graph messages carry, append-only: the pipeline's constraints and the inter-agent closures this
         agent verified (shared with the peers, which use them too), in the order they came."""
@@ -210,8 +223,14 @@ class SlamNode:
         self._inter_agent: list[tuple[PeerMatch, int]] = []
         """Closures verified with peers, with the peer's run (epoch) they refer to."""
         self._inter_agent_sent = 0
-        self._graph_clients: dict[str, Any] = {}
-        self._graph_requests: set[str] = set()
+        self._graph_fetcher = GraphFetcher(node.create_client, self._on_peer_full_graph, name=node.fq_name)
+        self.fleet_correction = FleetCorrection()
+        """The fleet back-end's placement and corrected keyframes of this agent (with ``follow_fleet``)."""
+        self._fleet_lock = threading.Lock()
+        """Guards ``fleet_correction``: the executor takes the back-end's messages, the worker reads them."""
+        if self.config.follow_fleet:
+            subscribe(topics.FLEET_PLACEMENTS, partial(self.on_fleet, "placements"), 1)
+            subscribe(topics.FLEET_PATH, partial(self.on_fleet, "path"), 1)
         for peer in self.config.peers:
             if peer == self.agent:
                 continue
@@ -220,14 +239,14 @@ class SlamNode:
             subscribe(topics.GRAPH_UPDATES, partial(self.on_peer_graph_update, peer), 50, topics.GRAPH_UPDATES.of(peer))
             subscribe(topics.FLEET_TRANSFORM, partial(self.on_peer_fleet_transform, peer), 1,
                       topics.FLEET_TRANSFORM.of(peer))  # fmt: skip
-            self._graph_clients[peer] = node.create_client("fleetslam_msgs/srv/GetGraph", f"/{peer}/graph/full")
+            self._graph_fetcher.add(peer)
         node.create_service("fleetslam_msgs/srv/GetGraph", "graph/full", self.on_full_graph)
         self.summary_store = SummaryStore(self.config.collaboration.summary_store,
                                           max_per_call=self.config.collaboration.catch_up_batch)  # fmt: skip
         """This agent's newest keyframe summaries, for peers that missed them (``keyframe_summaries/catch_up``)."""
         node.create_service(CATCH_UP_TYPE, CATCH_UP_SERVICE, self.on_summaries_request)
         self._summary_clients = {peer: node.create_client(CATCH_UP_TYPE, f"/{peer}/{CATCH_UP_SERVICE}")
-                                 for peer in self._graph_clients}  # fmt: skip
+                                 for peer in self.config.peers if peer != self.agent}  # fmt: skip
         node.create_service("fleetslam_msgs/srv/SaveMap", "slam/save_map", self.on_save_map)
         node.create_service(TRAJECTORY_TYPE, "slam/trajectory", self.on_trajectory)
         node.create_service("std_srvs/srv/Trigger", "slam/reset", self.on_reset)
@@ -361,26 +380,40 @@ class SlamNode:
                 self.linker.receive_shared(SharedClosure(peer, int(c.from_id), int(c.to_id), relative, update.epoch))
 
     def _request_graph(self, peer: str) -> None:
-        """Ask ``peer`` for its whole graph, off the middleware's thread (one request per peer at a time)."""
-        if peer in self._graph_requests or peer not in self._graph_clients:
-            return
-        self._graph_requests.add(peer)
-        self.counts["graph_requests"] += 1
+        """Ask ``peer`` for its whole graph (off the middleware's thread, one request per peer at a time)."""
+        if self._graph_fetcher.request(peer):
+            self.counts["graph_requests"] += 1
 
-        def ask() -> None:
-            try:
-                request = get_type("fleetslam_msgs/srv/GetGraph_Request")()
-                response = self._graph_clients[peer].call(request, timeout=5.0)
-                if str(response.graph.agent) == peer:
-                    update = graph_update_of(response.graph)
-                    self.linker.apply_graph(peer, update)
-                    self._receive_shared(peer, update)
-            except Exception as err:  # a peer gone or a malformed answer: the next gap asks again
-                log.info("%s: %s's graph could not be fetched: %s", self.agent, peer, err)
-            finally:
-                self._graph_requests.discard(peer)
+    def _on_peer_full_graph(self, peer: str, graph: Any) -> None:
+        if str(graph.agent) == peer:
+            update = graph_update_of(graph)
+            self.linker.apply_graph(peer, update)
+            self._receive_shared(peer, update)
 
-        threading.Thread(target=ask, name=f"{self.node.fq_name}/graph-{peer}", daemon=True).start()
+    def on_fleet(self, kind: str, msg: Any) -> None:
+        """The fleet back-end's placements (``tf2_msgs/TFMessage``) or this agent's corrected keyframes
+        (``nav_msgs/Path``), with ``follow_fleet``; a malformed one is counted and changes nothing."""
+        try:
+            with self._fleet_lock:
+                if kind == "placements":
+                    self.fleet_correction.take_placements(msg, f"{self.agent}/{self.config.map_frame}")
+                else:
+                    self.fleet_correction.take_path(msg)
+        except (ValueError, TypeError, AttributeError) as err:
+            self._bad_peer_message("the fleet back-end", f"fleet {kind}", err)
+
+    def _fleet_placement(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """With ``follow_fleet``, once the back-end placed this agent and corrected keyframes of its current run (a
+        placement or path left from a run before a reset matches none): its ``T_fleet_map``, and what takes a pose
+        of this agent's map frame into the fleet frame as the back-end corrected the newest corrected keyframe."""
+        if not self.config.follow_fleet or self.pipeline is None:
+            return None
+        with self._fleet_lock:
+            placement = self.fleet_correction.T_fleet_map
+            if placement is None or self.fleet_correction.frame_id != self.config.fleet_frame:
+                return None
+            chain = self.fleet_correction.chain(self.pipeline.keyframe_poses(), self.pipeline.keyframe_stamps)
+        return None if chain is None else (placement, chain)
 
     def on_peer_fleet_transform(self, peer: str, msg: Any) -> None:
         """A peer's ``fleet → <peer>/map`` (latched ``slam/fleet_transform``), once it is placed in the fleet frame."""
@@ -480,18 +513,25 @@ class SlamNode:
                 self._graph_changed = True
                 if step is None:  # idle: no frame will publish the graph soon
                     self.publish_graph(stamp_ns, optimized=False)
-        if not self.config.peers and not self.config.fleet_reference:
+        if not self.config.peers and not self.config.fleet_reference and not self.config.follow_fleet:
             return  # alone: no fleet to be placed in
         reference = self.config.fleet_reference or min([self.agent, *self.config.peers])
         transform = self.linker.fleet_transform(reference, self.peers_in_fleet)
-        if transform is None:
+        to_fleet = transform
+        backend = self._fleet_placement()
+        if backend is not None:
+            if not self._followed_backend:
+                log.info("%s: placed in the fleet frame by the fleet back-end", self.agent)
+            self._followed_backend = True
+            transform, to_fleet = backend
+        if transform is None or to_fleet is None:
             return
-        if self.fleet_transform is None:
+        if self.fleet_transform is None and backend is None:
             log.info("%s: placed in the fleet frame (reference %s)", self.agent, reference)
         self.fleet_transform = transform
         if step is not None:
             fleet_pose = get_type("geometry_msgs/msg/PoseStamped")(
-                header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(transform @ step.pose)
+                header=header(self.config.fleet_frame, stamp_ns), pose=pose_msg(to_fleet @ step.pose)
             )
             self.fleet_pose_pub.publish(fleet_pose)
         # The placement is refined with every closure by millimetres: it goes out when it moved by more than
@@ -819,6 +859,8 @@ class SlamNode:
             self._recognizer = None
             self.fleet_transform = None
             self._fleet_published = (0.0, np.zeros((4, 4)))
+            with self._fleet_lock:  # the back-end's word was on the old map frame
+                self.fleet_correction, self._followed_backend = FleetCorrection(), False
             if self.camera_info is not None:
                 self._start_pipeline(self.camera_info)
         return get_type("std_srvs/srv/Trigger_Response")(success=True, message="SLAM reset")

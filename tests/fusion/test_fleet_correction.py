@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fleetslam.fusion.fleet_correction import FleetCorrection, corrected_poses, stamp_key
 from fleetslam.geometry import invert, pose_from_xyz_rpy, random_pose
-from fleetslam.mapping.fleet_correction import FleetCorrection, corrected_poses, stamp_key
 
 
 def _scene() -> tuple[dict[int, np.ndarray], dict[int, float], dict[int, np.ndarray], np.ndarray]:

@@ -13,19 +13,22 @@ every keyframe. A keyframe the back-end does not know yet (newer than its last s
 follows its own graph, chained from the nearest corrected keyframe before it: ``T_map_c · own_c⁻¹ · own_kf``, so the
 newest part of the map continues where the corrected part ends.
 
-Pure: no middleware. Keyframes are matched to the path's poses by their stamps (the path carries no ids), both
-rounded to integer nanoseconds as the messages carry them.
+Pure: no middleware (the messages' fields are read, as decoded by any node). Keyframes are matched to the path's
+poses by their stamps (the path carries no ids), both rounded to integer nanoseconds as the messages carry them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fleetslam.geometry import invert, rotation_angle
+from fleetslam.geometry import invert, quat_to_matrix, rotation_angle
+from fleetslam.msg.conversions import transform_matrix
+from fleetslam.msg.typesys import ns_from_stamp
 
 Pose = NDArray[np.float64]
 
@@ -124,3 +127,42 @@ class FleetCorrection:
         if self.T_fleet_map is None or not self.corrected:
             return {i: np.asarray(p, dtype=np.float64) for i, p in own.items()}, np.eye(4)
         return corrected_poses(own, stamps, self.corrected, self.T_fleet_map)
+
+    def take_placements(self, msg: Any, child_frame: str) -> bool:
+        """The placement of ``child_frame`` (``<agent>/map``) from the back-end's ``/fleet/placements``
+        (``tf2_msgs/TFMessage``); whether one was taken (see :meth:`set_placement`). An agent the back-end no longer
+        places keeps its last placement. A malformed one raises ValueError and changes nothing."""
+        taken = False
+        for transform in msg.transforms:
+            if str(transform.child_frame_id) == child_frame:
+                taken |= self.set_placement(transform_matrix(transform.transform), str(transform.header.frame_id))
+        return taken
+
+    def take_path(self, msg: Any) -> None:
+        """The agent's corrected keyframes from its ``fleet_path`` (``nav_msgs/Path``). A malformed one raises
+        ValueError and changes nothing."""
+        poses = msg.poses
+        values = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z, p.pose.orientation.x,
+                            p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w) for p in poses],
+                          dtype=np.float64).reshape(-1, 7)  # fmt: skip
+        if not np.isfinite(values).all() or (np.linalg.norm(values[:, 3:], axis=1) < 1e-6).any():
+            raise ValueError("a pose is not finite, or its quaternion is zero")
+        matrices = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
+        if len(values):
+            matrices[:, :3, :3] = quat_to_matrix(values[:, 3:])
+            matrices[:, :3, 3] = values[:, :3]
+        stamps = np.array([ns_from_stamp(p.header.stamp) for p in poses], dtype=np.int64)
+        self.set_path(stamps, matrices, str(msg.header.frame_id))
+
+    def chain(self, own: Mapping[int, Pose], stamps: Mapping[int, float]) -> Pose | None:
+        """``T_fleet_map · T_map_c · own_c⁻¹`` of the newest keyframe ``c`` of ``own`` the back-end corrected: what
+        takes a pose of the agent's own map frame (a keyframe newer than the path, the camera now) into the fleet
+        frame as the back-end's correction of that keyframe moved it. None while inactive or when no keyframe of
+        ``own`` is corrected (a path of another run of the agent)."""
+        if self.T_fleet_map is None or not self.corrected:
+            return None
+        for i in sorted(own, reverse=True):
+            corrected = self.corrected.get(stamp_key(stamps[i])) if i in stamps else None
+            if corrected is not None:
+                return np.asarray(corrected, dtype=np.float64) @ invert(np.asarray(own[i], dtype=np.float64))
+        return None
