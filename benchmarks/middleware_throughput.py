@@ -22,8 +22,9 @@ for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetsla
 number, attachment, put) against raw Zenoh's put of the same payload to the same subscriber, the attachment, the
 payload's copy out of Zenoh, the statistics, deserialization, and the subscription's own entry point on the thread
 that receives (a KEEP_LAST subscription's receive thread, batched into the executor; KEEP_ALL's Zenoh callback
-thread, one hand-off per sample; ``inline``) and its executor's share, against what the raw Zenoh peer's callback
-does. Thread CPU time
+thread, one hand-off per sample; ``inline``) and its executor's share, and a KEEP_LAST executor taking the samples
+from the ring itself (``sub_batched_executor_pull``: all of a sample's Python work, on one thread), against what the
+raw Zenoh peer's callback does. Thread CPU time
 does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
 and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
 
@@ -443,6 +444,8 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
         rows["sub_deserialize"] = _us_per_message(decode, count)
         for path in ("batched", "executor", "inline"):
             rows.update(_subscription_path(node, type_name, sample, count, path=path))
+        if kind == "string_64b":  # 1 MB samples left in the ring would measure cold caches and page faults
+            rows["sub_batched_executor_pull"] = _executor_pull(node, publisher, msg, type_name, count)
 
         def zenoh_callback(n: int) -> None:  # what the raw Zenoh peer's subscriber does with each sample
             for _ in range(n):
@@ -482,6 +485,9 @@ def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, pa
     receive = subscription._on_sample
     thread = "receive_thread" if path == "batched" else "zenoh_thread"
     rows = {f"sub_{path}_{thread}": _us_per_message(lambda n: [receive(sample) for _ in range(n)], count)}
+    deadline = time.monotonic() + 120.0
+    while delivered[0] < count and time.monotonic() < deadline:  # a drain delivers a bounded batch per turn
+        time.sleep(0.01)
     node.call_soon(lambda: mark(1))
     marks[1].wait(120.0)
     rows[f"sub_{path}_executor_thread"] = round((executor_cpu[1] - executor_cpu[0]) / count / 1000, 3)
@@ -489,6 +495,48 @@ def _subscription_path(node: Any, type_name: str, sample: Any, count: int, *, pa
         raise RuntimeError(f"layers: {delivered[0]} of {count} samples delivered ({path})")
     subscription.destroy()
     return rows
+
+
+def _executor_pull(node: Any, publisher: Any, msg: Any, type_name: str, count: int) -> float:
+    """Thread CPU µs per sample of a KEEP_LAST subscription's executor taking the samples from the ring itself (what
+    it does while it keeps up with the ring): ``try_recv``, checks, statistics (one call per batch), decoding and
+    the callback, all of a sample's Python work on one thread. Real samples of ``publisher``, batch by batch."""
+    import gc
+
+    import zenoh
+
+    from fleetslam.middleware import QoSProfile
+    from fleetslam.middleware.subscription import RECEIVE_RING_CAPACITY
+
+    delivered = [0]
+
+    def callback(msg: Any, info: Any) -> None:
+        delivered[0] += 1
+
+    subscription = node.create_subscription(type_name, "/bench/layers_pull", callback, QoSProfile(depth=count))
+    batch = min(count, RECEIVE_RING_CAPACITY)
+    ring = node.context.session.declare_subscriber(publisher.key, zenoh.handlers.RingChannel(batch))
+    subscription._try_recv = ring.handler.try_recv
+    cpu_ns = taken = 0
+    while taken < count:
+        for _ in range(min(batch, count - taken)):
+            publisher.publish(msg)
+        time.sleep(0.1)
+        gc.collect()
+        subscription._executor_pulls = True
+        start = time.thread_time_ns()
+        pulled = 0
+        while pulled_now := subscription._pull(batch):
+            pulled += pulled_now
+        cpu_ns += time.thread_time_ns() - start
+        if not pulled:
+            raise RuntimeError("layers: the ring received nothing (executor pull)")
+        taken += pulled
+    ring.undeclare()
+    subscription.destroy()
+    if delivered[0] != taken:
+        raise RuntimeError(f"layers: {delivered[0]} of {taken} samples delivered (executor pull)")
+    return round(cpu_ns / taken / 1000, 3)
 
 
 # -- main -------------------------------------------------------------------------------------------------------

@@ -2,6 +2,8 @@
 them to the node's executor in batches: the node's guarantees (one thread, one callback at a time, KEEP_LAST,
 statistics) hold, Zenoh never waits for a slow node, and undeclaring ends the thread."""
 
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -162,3 +164,65 @@ def test_a_stalled_node_does_not_hold_back_its_session(make_context: Callable[..
     # missing as a gap; those before the first one counted are not seen at all (this thread held the GIL).
     assert stats.total_delivered >= 1 and stats.total_delivered + stats.total_dropped <= 3000
     assert flooded.queue_overflows == stats.total_delivered - 1
+
+
+FLOODER = """
+import sys, time
+from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.msg.typesys import get_type, serialize
+with Context(statistics=False) as context:
+    node = Node("flooder", context=context, statistics_period_s=0)
+    flood = node.create_publisher("std_msgs/msg/String", "/flood", QoSProfile(history="keep_all"))
+    payload = serialize(get_type("std_msgs/msg/String")(data="x" * 56), "std_msgs/msg/String")
+    print("ready", flush=True)
+    deadline = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < deadline:
+        for _ in range(100):
+            flood.publish(payload)
+"""
+
+
+def test_a_flood_does_not_starve_the_nodes_timer_or_its_other_subscriptions(
+    fleet_env: str, make_context: Callable[..., Context]
+) -> None:
+    talker = Node("talker", context=make_context(), statistics_period_s=0)
+    node = Node("flooded", context=make_context(), statistics_period_s=0)
+    started: list[float] = []
+    flood_got = [0]
+    ticks: list[float] = []
+    pings: list[float] = []
+
+    def on_flood(msg: Any) -> None:
+        if not started:
+            started.append(time.monotonic())
+        flood_got[0] += 1
+        spin_until = time.perf_counter() + 0.00002  # a callback with some work: the executor is the bottleneck
+        while time.perf_counter() < spin_until:
+            pass
+
+    flooded = node.create_subscription("std_msgs/msg/String", "/flood", on_flood, QoSProfile(depth=1000))
+    node.create_subscription("std_msgs/msg/String", "/ping", lambda m: pings.append(time.monotonic()))
+    node.create_timer(0.01, lambda: ticks.append(time.monotonic()))
+    ping = talker.create_publisher("std_msgs/msg/String", "/ping")
+    # The flood comes from another process: a publisher in this one would share the GIL with the executor.
+    flooder = subprocess.Popen([sys.executable, "-c", FLOODER, "3.0"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert flooder.stdout is not None and flooder.stdout.readline().strip() == "ready"
+        assert wait_until(lambda: bool(started), 10.0)
+        for i in range(10):
+            time.sleep(0.1)
+            ping.publish(String(data=str(i)))
+        time.sleep(0.2)
+        flooding = (started[0], time.monotonic())
+        received = flood_got[0]
+    finally:
+        flooder.kill()
+        flooder.wait()
+    # The flood kept the executor busy throughout, and the executor took its samples from the ring itself...
+    assert received > 1000
+    assert flooded._pulled > 0
+    # ... a batch at a time: the timer (10 ms) and the other topic took their turns in between.
+    ticks_during = [t for t in ticks if flooding[0] < t < flooding[1]]
+    pings_during = [t for t in pings if flooding[0] < t < flooding[1]]
+    assert len(ticks_during) >= 20, (len(ticks_during), received)
+    assert len(pings_during) >= 8, (len(pings_during), received)

@@ -266,9 +266,12 @@ def _textbook_windows(events: list[tuple[Any, ...]]) -> list[dict[bytes, tuple[A
     return windows
 
 
-def test_batched_statistics_match_the_textbook_on_long_random_streams() -> None:
+@pytest.mark.parametrize("runs", [False, True], ids=["on_sample", "on_samples"])
+def test_batched_statistics_match_the_textbook_on_long_random_streams(runs: bool) -> None:
     """Samples are folded in batches (NumPy) or one by one (small batches, numbers beyond int64 arithmetic); every
-    window must report what whole-list formulas give: counts exactly, means and σ to rounding."""
+    window must report what whole-list formulas give: counts exactly, means and σ to rounding. The same whether
+    they come one by one or in runs of one publisher's (``on_samples``, what an executor's pull from the ring
+    records), runs with a number beyond int64 included."""
     rng = np.random.default_rng(11)
     gids = [GID_A, GID_B, bytes(range(32, 48))]
     sequence = dict.fromkeys(gids, 0)
@@ -287,7 +290,24 @@ def test_batched_statistics_match_the_textbook_on_long_random_streams() -> None:
     events.append(("close",))
     acc = SubscriptionStatistics(now_ns=0)
     got: list[dict[bytes, tuple[Any, ...]]] = []
+    run: list[tuple[Any, ...]] = []
+    run_length = 1
+
+    def flush() -> None:
+        if run:
+            acc.on_samples(run[0][1], [e[2] for e in run], [e[3] for e in run], [e[4] for e in run],
+                           sum(e[5] for e in run))  # fmt: skip
+            run.clear()
+
     for event in events:
+        if runs and event[0] == "sample" and (not run or (run[0][1] == event[1] and len(run) < run_length)):
+            run.append(event)
+            continue
+        flush()
+        run_length = int(rng.integers(1, 300))
+        if runs and event[0] == "sample":
+            run.append(event)
+            continue
         if event[0] == "close":
             got.append(
                 {
@@ -301,6 +321,7 @@ def test_batched_statistics_match_the_textbook_on_long_random_streams() -> None:
             )  # fmt: skip
         else:
             acc.on_sample(*event[1:])
+    flush()
     expected = _textbook_windows(events)
     assert len(got) == len(expected) > 10
     for window_got, window_expected in zip(got, expected, strict=True):

@@ -64,6 +64,12 @@ _deserialize = typesys.deserialize
 RECEIVE_RING_CAPACITY = 256
 """Samples Zenoh keeps for a KEEP_LAST subscription's receive thread (the oldest dropped when it falls behind, never
 blocking Zenoh's thread); Zenoh's own channel size, the most a subscription held before it reached Python before."""
+DRAIN_BATCH = RECEIVE_RING_CAPACITY
+"""Samples a KEEP_LAST subscription delivers per turn of the executor; then the node's other work (timers, other
+topics, services) takes its turn before the drain goes on."""
+PARK_S = 0.005
+"""How long the receive thread leaves the ring to an executor that takes nothing from it (a long callback, other
+work of the node) before it takes the ring back and goes on counting and queueing on its own."""
 _COPY_ON_EXECUTOR_BYTES = 1 << 16
 """Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
 
@@ -89,10 +95,13 @@ def _accepts_info(callback: Callable[..., Any]) -> bool:
 class Subscription(Entity):
     """Receives messages of a topic; the callback runs on the node's executor.
 
-    A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`)
-    on a receive thread of its own, which checks and counts them, queues them (KEEP_LAST ``depth``) and hands them
-    to the executor in batches: Zenoh's threads never wait for Python, and the executor wakes once per batch, not
-    once per sample. When the receive thread falls behind by more than the ring, Zenoh drops the oldest samples
+    A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`):
+    Zenoh's threads never wait for Python. A receive thread of its own waits for the first sample and hands the
+    ring to the idle executor, which then takes the samples itself, checks, counts, decodes them and runs the
+    callback, at most :data:`DRAIN_BATCH` per turn (one thread doing all the Python work of a sample, no hand-off
+    per sample), until it finds the ring empty and the receive thread waits again. While the executor is busy
+    (a long callback, other work) the receive thread checks, counts and queues the samples itself (KEEP_LAST
+    ``depth``), so the callback gets the newest. When neither keeps up with the ring, Zenoh drops the oldest samples
     before they are counted: /statistics sees them as sequence gaps (``dropped``), not as ``queue_overflows``.
     KEEP_ALL and transient-local subscriptions get each sample from Zenoh's callback thread (a FIFO channel that
     holds back reception when full) and hand it to the executor one by one.
@@ -144,6 +153,17 @@ class Subscription(Entity):
         self._posted = False
         """A drain of the queue is posted to the executor and has not started yet (batched hand-off only)."""
         self._batched = False
+        self._ring_lock = threading.Lock()
+        """Held by the executor while it takes samples from the ring, and by either thread to pass the ring on."""
+        self._executor_pulls = False
+        """The executor takes the samples from the ring (the receive thread is parked), batched subscriptions."""
+        self._handback = threading.Event()
+        """Set by the executor when it found the ring empty: the receive thread waits in ``recv`` again."""
+        self._pulled = 0
+        """Samples the executor took from the ring."""
+        self._turns = 0
+        """Drains and pulls the executor ran (the parked receive thread's sign of its progress)."""
+        self._try_recv: Callable[[], zenoh.Sample | None] | None = None
         self._receiver: threading.Thread | None = None
         """The receive thread of a batched subscription (it ends when the subscriber is undeclared)."""
         self.queue_overflows = 0
@@ -195,47 +215,134 @@ class Subscription(Entity):
         return self.name
 
     def _receive_loop(self, handler: zenoh.handlers.Handler[zenoh.Sample]) -> None:
-        # The receive thread of a batched subscription. ``recv`` waits without the GIL; ``try_recv`` then takes
-        # what else is queued without giving the GIL up for each sample. Every RECEIVE_RING_CAPACITY samples it
-        # waits in ``recv`` again, which lets the executor run under a flood.
-        recv, try_recv, on_sample = handler.recv, handler.try_recv, self._on_sample
+        # The receive thread of a batched subscription. ``recv`` waits without the GIL (and gives it up even when a
+        # sample is waiting; ``try_recv`` does not). A lone sample is checked, counted and queued here and a drain
+        # posted to the executor. When more are waiting (a flood), this thread hands the executor the ring: the
+        # executor delivers what is queued, then takes the samples itself, checks, counts, decodes them and runs the
+        # callback, one thread doing all the Python work, while this one sleeps (``_park``) until the executor
+        # finds the ring empty. An executor that makes no progress for PARK_S (a long callback, other work) gets
+        # the ring taken back: until it runs a drain again, this thread takes what is waiting itself (without
+        # giving up the GIL), so KEEP_LAST keeps the newest and the statistics count the samples as they come.
+        recv, try_recv, take = handler.recv, handler.try_recv, self._take
+        self._try_recv = try_recv
+        ring_lock, handback, pending, post, drain = (
+            self._ring_lock, self._handback, self._pending, self._post, self._drain_bound
+        )  # fmt: skip
+        stalled_at = -1
+        """The executor's turns when it last stalled with the ring (it gets the ring again once it moves on)."""
         try:
             while not self._destroyed:
-                on_sample(recv())
-                for _ in range(RECEIVE_RING_CAPACITY):
-                    sample = try_recv()
-                    if sample is None:
-                        break
-                    on_sample(sample)
+                take(recv())
+                sample = try_recv()
+                if sample is not None:
+                    take(sample)
+                    if self._turns != stalled_at:
+                        with ring_lock:  # a drain may start at once: it must find the ring its own
+                            handback.clear()
+                            self._executor_pulls = True
+                        if not self._posted:
+                            self._posted = True
+                            post(drain)
+                        if self._park():
+                            stalled_at = self._turns
+                        continue
+                    for _ in range(RECEIVE_RING_CAPACITY):
+                        sample = try_recv()
+                        if sample is None:
+                            break
+                        take(sample)
+                if pending and not self._posted:
+                    self._posted = True
+                    post(drain)
         except zenoh.ZError:
             pass  # undeclared, or its session closed: the ring is gone
         except Exception as err:  # nothing may end a node's reception silently
             log.warning("%s: receive thread stopped: %s: %s", self.topic, type(err).__name__, err)
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Runs on a Zenoh thread: whatever arrives, nothing may escape from here.
+    def _park(self) -> bool:
+        """Sleep while the executor takes the samples: until it hands the ring back (False), or makes no progress
+        for PARK_S (a long callback, other work of the node), when this thread takes the ring back (True)."""
+        handback, ring_lock = self._handback, self._ring_lock
+        while not self._destroyed:
+            seen = self._turns
+            if handback.wait(PARK_S):
+                return False
+            with ring_lock:
+                if not self._executor_pulls:
+                    return False
+                if self._turns == seen:
+                    self._executor_pulls = False
+                    return True
+        return False
+
+    def _take(self, sample: zenoh.Sample) -> None:
+        """Check, count and queue a sample (batched subscriptions: posting is the caller's)."""
         if self._destroyed:
             return
         try:
             self._receive(sample)
-        except Exception as err:
-            self.statistics.on_error(None)
-            self.node.error_log.warning(
-                f"{self.topic}:internal", "%s: dropped a sample: %s: %s", self.topic, type(err).__name__, err
-            )
+        except Exception as err:  # whatever arrives, nothing may escape from here
+            self._internal_error(err)
 
-    def _receive(self, sample: zenoh.Sample) -> None:
-        # Hot path (every sample, on the receive thread or Zenoh's): checks, statistics and queueing only.
-        # Deserialization waits for the executor, so samples that KEEP_LAST drops before their turn cost no
-        # decoding. Every line here
-        # costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's table of layers).
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh's callback (KEEP_ALL, transient local, inline): whatever arrives, nothing may escape from here.
+        if self._destroyed:
+            return
+        try:
+            due = self._receive(sample)
+        except Exception as err:
+            self._internal_error(err)
+            return
+        if not due:
+            return
+        if self._batched:
+            if not self._posted:  # one drain serves all that is queued before it starts
+                self._posted = True
+                self._post(self._drain_bound)
+        else:
+            self._post(self._dispatch_bound)
+
+    def _internal_error(self, err: Exception) -> None:
+        self.statistics.on_error(None)
+        self.node.error_log.warning(
+            f"{self.topic}:internal", "%s: dropped a sample: %s: %s", self.topic, type(err).__name__, err
+        )
+
+    def _receive(self, sample: zenoh.Sample) -> bool:
+        # Every sample the receive thread or Zenoh's thread takes: checked, counted and queued (or, inline,
+        # delivered); True when it queued the sample and, unless KEEP_LAST dropped one for it, a hand-off is due.
+        # Deserialization waits for the executor, so samples that KEEP_LAST drops before their turn cost no decoding.
+        checked = self._check(sample)
+        if checked is None:
+            return False
+        zpayload, info = checked
+        if self.inline:
+            self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
+            return False
+        # A large payload leaves Zenoh on the executor, where its copy is also freed: a buffer made on one thread
+        # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
+        # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
+        payload: bytes | zenoh.ZBytes = zpayload if info.size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
+        pending = self._pending
+        with self._pending_lock:
+            full = len(pending) == pending.maxlen
+            pending.append((payload, info))  # drops the oldest when full; its post serves this one
+            if full:
+                self.queue_overflows += 1
+        return self._batched or not full
+
+    def _check(self, sample: zenoh.Sample, count: bool = True) -> tuple[zenoh.ZBytes, MessageInfo] | None:
+        # Hot path (every sample, whichever thread takes it from Zenoh): the attachment, the checks, the statistics
+        # (unless the caller counts a batch itself) and the MessageInfo; None for a sample dropped (counted and
+        # logged). Every line here costs a 64-byte message's throughput (see benchmarks/middleware_throughput.py's
+        # table of layers).
         received = _time_ns()
         attachment = sample.attachment
         zpayload = sample.payload
         size = len(zpayload)
         if attachment is None:
             self._drop(None, size, "noatt", "%s: dropped a sample without attachment", self.topic)
-            return
+            return None
         raw_attachment = attachment.to_bytes()
         try:
             seq, stamp, gid_length, gid = _unpack_attachment(raw_attachment)  # the 33-byte form in one call
@@ -246,7 +353,7 @@ class Subscription(Entity):
                 decoded = decode_attachment(raw_attachment)  # also the labelled form of Jazzy ≤ 0.2.3
             except MessageError as err:
                 self._drop(None, size, "att", "%s: dropped a sample: %s", self.topic, err)
-                return
+                return None
             seq, stamp, gid = decoded.sequence_number, decoded.source_timestamp_ns, decoded.gid
         if size > self.max_payload_bytes:
             self._drop(
@@ -258,39 +365,21 @@ class Subscription(Entity):
                 size,
                 self.max_payload_bytes,
             )
-            return
+            return None
         type_name = self.type_name
         if self.any_type:
             try:
                 type_name = parse_topic_key(str(sample.key_expr))[2]
             except MessageError as err:
                 self._drop(gid, size, "key", "%s: dropped a sample: %s", self.topic, err)
-                return
+                return None
             types = self.publisher_types  # as bounded as the statistics: GIDs are forgeable
             if gid not in types and len(types) >= self.statistics.max_publishers:
                 del types[next(iter(types))]
             types[gid] = type_name
-        self._on_stats(gid, seq, stamp, received, size)
-        info = _new_info(MessageInfo, (stamp, received, seq, gid, size, self.name, type_name))
-        if self.inline:
-            self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
-            return
-        # A large payload leaves Zenoh on the executor, where its copy is also freed: a buffer made on one thread
-        # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
-        # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
-        payload: bytes | zenoh.ZBytes = zpayload if size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
-        pending = self._pending
-        with self._pending_lock:
-            full = len(pending) == pending.maxlen
-            pending.append((payload, info))  # drops the oldest when full; its post serves this one
-            if full:
-                self.queue_overflows += 1
-        if self._batched:
-            if not self._posted:  # one drain serves all that is queued before it starts
-                self._posted = True
-                self._post(self._drain_bound)
-        elif not full:
-            self._post(self._dispatch_bound)
+        if count:
+            self._on_stats(gid, seq, stamp, received, size)
+        return zpayload, _new_info(MessageInfo, (stamp, received, seq, gid, size, self.name, type_name))
 
     def _drop(self, gid: bytes | None, size: int, cause: str, message: str, *args: object) -> None:
         """Count a sample dropped on arrival as an error of its publisher (if known) and log it, rate-limited."""
@@ -298,19 +387,89 @@ class Subscription(Entity):
         self.node.error_log.warning(f"{self.topic}:{cause}", message, *args)
 
     def _drain(self) -> None:
-        # On the executor: delivers what is queued when it starts; what arrives meanwhile gets the next drain, so
-        # the node's other callbacks (timers, services, other topics) still take their turns under a flood.
+        # On the executor: delivers what is queued, then, while the ring is the executor's, takes the samples from
+        # the ring itself; at most DRAIN_BATCH per turn, so the node's other callbacks (timers, services, other
+        # topics) still take their turns under a flood.
         self._posted = False  # cleared before looking at the queue: a sample queued after this posts again
+        self._turns += 1
         pending, lock, deliver = self._pending, self._pending_lock, self._deliver
-        for _ in range(len(pending)):
+        budget = DRAIN_BATCH
+        while budget > 0:
             with lock:
-                if not pending:
-                    return
-                payload, info = pending.popleft()
-            deliver(payload, info)
-        if pending and not self._posted:
+                item = pending.popleft() if pending else None
+            if item is not None:
+                deliver(*item)
+                budget -= 1
+                continue
+            if not self._executor_pulls:
+                return
+            taken = self._pull(budget)
+            if not taken:
+                return
+            budget -= taken
+        if not self._posted and (pending or self._executor_pulls):
             self._posted = True
             self._post(self._drain_bound)
+
+    def _pull(self, budget: int) -> int:
+        """On the executor: take up to ``budget`` samples from the ring, check, count and deliver them (KEEP_LAST:
+        the newest ``depth`` of them); returns how many it took. Taking none hands the ring back to the receive
+        thread."""
+        checked: list[tuple[zenoh.ZBytes, MessageInfo]] = []
+        taken = 0
+        with self._ring_lock:
+            if not self._executor_pulls:
+                return 0
+            try_recv, check, keep = self._try_recv, self._check, checked.append
+            try:
+                while taken < budget and not self._destroyed and try_recv is not None:
+                    sample = try_recv()  # holds the GIL (recv would give it up even with a sample waiting)
+                    if sample is None:
+                        break
+                    taken += 1
+                    try:
+                        item = check(sample, False)
+                    except Exception as err:  # whatever arrives, nothing may escape from here
+                        self._internal_error(err)
+                        continue
+                    if item is not None:
+                        keep(item)
+            except zenoh.ZError:
+                pass  # undeclared, or its session closed: the ring is gone
+            if checked:
+                self._count(checked)
+            self._pulled += taken
+            self._turns += 1
+            if not taken:
+                self._executor_pulls = False
+                self._handback.set()
+        overflow = len(checked) - (self._pending.maxlen or len(checked))
+        if overflow > 0:
+            with self._pending_lock:  # the receive thread counts its own under it
+                self.queue_overflows += overflow
+            del checked[:overflow]
+        deliver = self._deliver
+        for payload, info in checked:
+            if self._destroyed:
+                break
+            deliver(payload, info)
+        return taken
+
+    def _count(self, checked: list[tuple[zenoh.ZBytes, MessageInfo]]) -> None:
+        """Count the samples of one pull in the statistics, a run of one publisher's in one call."""
+        gid = checked[0][1].publisher_gid
+        infos = [info for _, info in checked]
+        if all(info[3] == gid for info in infos):  # one publisher (the usual case)
+            self.statistics.on_samples(
+                gid,
+                [info[2] for info in infos],
+                [info[0] for info in infos],
+                [info[1] for info in infos],
+                sum(info[4] for info in infos),
+            )
+            return
+        for stamp, received, seq, publisher_gid, size, *_ in infos:
+            self._on_stats(publisher_gid, seq, stamp, received, size)
 
     def _dispatch(self) -> None:
         with self._pending_lock:
