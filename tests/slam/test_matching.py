@@ -43,6 +43,32 @@ def test_match_by_projection_finds_each_point_near_its_prediction_and_nowhere_el
     assert true.sum() >= 0.95 * n
 
 
+def test_a_landmark_made_twice_is_not_its_own_rival_but_a_repeated_pattern_is() -> None:
+    """Each keypoint has two candidates with nearly the same descriptor: in the first half on the same spot (one
+    landmark made twice, from two keyframes), in the second 12 px apart (a repeated pattern, a floor tile on)."""
+    rng = np.random.default_rng(5)
+    n = 200
+    descriptors = random_descriptors(rng, n)
+    keypoints = rng.uniform([20, 20], [620, 460], (n, 2))
+    apart = np.where(np.arange(n)[:, None] < n // 2, [0.8, -0.6], [12.0, 0.0])
+    shift = np.array([0.5, 0.5])
+    predicted = np.vstack([keypoints + shift, keypoints + shift + apart])
+    map_descriptors = np.vstack([flip_bits(rng, descriptors, 8), flip_bits(rng, descriptors, 8)])
+
+    def matched(same_point_radius: float) -> np.ndarray:
+        frame_index, map_index = match_by_projection(
+            keypoints, descriptors, predicted, map_descriptors, 15.0, 0.8, same_point_radius=same_point_radius
+        )
+        assert np.all(map_index % n == frame_index)  # one of the keypoint's own two candidates
+        return frame_index
+
+    # Every candidate a rival: nearly equal distances, the ratio test rejects most of both kinds.
+    assert len(matched(0.0)) < 0.2 * n
+    # The same spot is the same point: those keypoints match; a pattern 12 px on is still a rival.
+    kept = matched(2.0)
+    assert np.sum(kept < n // 2) > 0.95 * (n // 2) and np.sum(kept >= n // 2) < 0.2 * (n // 2)
+
+
 def test_match_mutual_pairs_true_correspondences_only() -> None:
     rng = np.random.default_rng(4)
     base = random_descriptors(rng, 300)

@@ -157,3 +157,28 @@ def test_keyframes_that_left_the_window_stay_fixed_in_its_adjustment(textures: l
     # The odometry's frame is the first camera's: the last pose is the last motion, to the pair test's bounds.
     error = invert(motions[-1]) @ vo.pose
     assert np.linalg.norm(error[:3, 3]) < 0.010 and np.degrees(rotation_angle(error)) < 0.25
+
+
+def test_the_fixed_keyframes_hold_the_window_only_where_no_wheel_prior_ties_it(textures: list[np.ndarray]) -> None:
+    """The retired keyframes join the window's adjustment for a camera without wheels; with the wheels tying each
+    keyframe to the one before, the adjustment is the one without them, to the bit."""
+    motions = [pose_from_xyz_rpy(0.03 * k, 0.0, 0.01 * k, 0.0, np.radians(1.0 * k), 0.0) for k in range(9)]
+    frames = [render(BASE @ motion, INTRINSICS, textures) for motion in motions]
+
+    def track(fixed: int, wheels: bool) -> tuple[VisualOdometry, list[np.ndarray]]:
+        config = OdometryConfig(window_keyframes=3, window_fixed_keyframes=fixed, keyframe_translation=0.05)
+        vo = VisualOdometry(config, INTRINSICS)
+        poses = []
+        for k, ((rgb, depth), motion) in enumerate(zip(frames, motions, strict=True)):
+            poses.append(vo.track(rgb, depth, 0.1 * k, prior=motion if wheels else None).pose)
+            poses.append(adjusted if (adjusted := vo.local_mapping()) is not None else poses[-1])
+        return vo, poses
+
+    with_wheels, with_wheels_poses = track(3, wheels=True)
+    assert len(with_wheels._retired) >= 2 and not with_wheels._needs_fixed_keyframes()
+    for a, b in zip(with_wheels_poses, track(0, wheels=True)[1], strict=True):
+        np.testing.assert_array_equal(a, b)
+    hand_held, hand_held_poses = track(3, wheels=False)
+    assert len(hand_held._retired) >= 2 and hand_held._needs_fixed_keyframes()
+    plain = track(0, wheels=False)[1]
+    assert any(not np.array_equal(a, b) for a, b in zip(hand_held_poses, plain, strict=True))

@@ -91,6 +91,10 @@ class OdometryConfig(ConfigModel):
     640-pixel-wide image, scaled with the width); a frame that tracks poorly is searched again at 4× the radius,
     then across the whole image."""
 
+    same_point_radius: float = Field(default=0.0, ge=0.0)
+    """Landmarks the prediction projects within this many pixels (of a 640-pixel-wide image, scaled with the
+    width) of a keypoint's nearest landmark are not its rival in the ratio test: they are the same point made
+    twice. 0 = every candidate competes."""
     max_prediction_error: float = Field(default=0.1, gt=0.0)
     """A pose farther than this from the motion prediction (metres per 1/30 s of frame interval) is a failure,
     not motion: a ground robot cannot jump that far between frames."""

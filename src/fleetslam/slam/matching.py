@@ -35,24 +35,32 @@ def _order_by(group: NDArray[np.intp], distance: NDArray[np.float64]) -> NDArray
 
 
 def _best_per_query(
-    query: NDArray[np.intp], train: NDArray[np.intp], distance: NDArray[np.float64], ratio: float
+    query: NDArray[np.intp],
+    train: NDArray[np.intp],
+    distance: NDArray[np.float64],
+    ratio: float,
+    positions: NDArray[np.floating] | None = None,
+    same_point_radius: float = 0.0,
 ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
     """Per query index, its nearest train index if it passes the ratio test against the second nearest (a
-    query with one candidate passes)."""
+    query with one candidate passes). With ``positions`` (per train index) and ``same_point_radius`` > 0, the
+    second nearest is sought only among candidates farther than that from the nearest: candidates on the same
+    spot are the same point twice, not a rival."""
     order = _order_by(query, distance)
     query, train, distance = query[order], train[order], distance[order]
     first = np.ones(len(query), bool)
     first[1:] = query[1:] != query[:-1]
     starts = np.flatnonzero(first)
-    has_second = np.zeros(len(starts), bool)
-    second = np.full(len(starts), np.inf)
-    following = starts + 1
-    inside = following < len(query)
-    inside[inside] = ~first[following[inside]]
-    has_second[inside] = True
-    second[inside] = distance[following[inside]]
     best = distance[starts]
-    keep = ~has_second | (best < ratio * second)
+    rival = np.ones(len(query), bool)
+    if positions is not None and same_point_radius > 0 and len(query):
+        group = np.cumsum(first) - 1
+        spot = np.asarray(positions, np.float64)
+        offset = spot[train] - spot[train[starts]][group]
+        rival = np.einsum("ij,ij->i", offset, offset) > same_point_radius**2
+    rival[starts] = False
+    second = np.minimum.reduceat(np.where(rival, distance, np.inf), starts) if len(starts) else best
+    keep = best < ratio * second
     return query[starts][keep], train[starts][keep], best[keep]
 
 
@@ -64,11 +72,14 @@ def match_by_projection(
     radius: float,
     ratio: float,
     max_distance: float = 0.0,
+    same_point_radius: float = 0.0,
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Match keypoints (N, 2) to map points whose predicted image positions ``projected`` (M, 2) lie within
     ``radius`` pixels: nearest descriptor with a ratio test among those candidates.
 
-    ``max_distance`` > 0 also bounds the descriptor distance. Returns (keypoint indices, map indices).
+    ``max_distance`` > 0 also bounds the descriptor distance. ``same_point_radius`` > 0: map points projected
+    within that many pixels of the nearest one do not count as its rival in the ratio test (the same landmark
+    twice, made from two keyframes, would otherwise reject both). Returns (keypoint indices, map indices).
     """
     if len(keypoints) == 0 or len(projected) == 0:
         return EMPTY, EMPTY
@@ -83,7 +94,7 @@ def match_by_projection(
     if max_distance > 0:
         close = distance <= max_distance
         query, train, distance = query[close], train[close], distance[close]
-    query, train, distance = _best_per_query(query, train, distance, ratio)
+    query, train, distance = _best_per_query(query, train, distance, ratio, projected, same_point_radius)
     # A map point is one physical point: when several keypoints chose it, only the closest descriptor keeps it.
     order = _order_by(train, distance)
     first = np.ones(len(order), bool)

@@ -388,6 +388,7 @@ class VisualOdometry:
             radius,
             self.config.match_ratio,
             self.config.max_descriptor_distance if self.extractor.binary else 0.0,
+            self.config.same_point_radius * self._pixel_scale,
         )
         return q, visible[t]
 
@@ -638,11 +639,11 @@ class VisualOdometry:
         return np.concatenate(found_index), np.concatenate(found_ids), unmeasured
 
     def _adjust_window(self) -> NDArray[np.float64]:
-        """Bundle-adjust the window (its oldest keyframe fixed, and the ``window_fixed_keyframes`` that left it
-        before, fixed, observing the landmarks they share with it: ORB-SLAM's fixed covisible keyframes, which tie
-        the landmarks to where earlier keyframes saw them) and write the result back; returns the newest keyframe's
-        pose."""
-        retired = list(self._retired) if self.config.window_fixed_keyframes else []
+        """Bundle-adjust the window (its oldest keyframe fixed, and, where no wheel prior ties the window, the
+        ``window_fixed_keyframes`` that left it before, fixed, observing the landmarks they share with it:
+        ORB-SLAM's fixed covisible keyframes, which tie the landmarks to where earlier keyframes saw them) and write
+        the result back; returns the newest keyframe's pose."""
+        retired = list(self._retired) if self._needs_fixed_keyframes() else []
         window = retired + list(self.window)
         fixed = np.arange(len(window)) <= len(retired)
         obs_pose = np.concatenate([np.full(len(kf.landmarks), k, np.intp) for k, kf in enumerate(window)])
@@ -690,6 +691,15 @@ class VisualOdometry:
                 kf.depths, kf.scales = kf.depths[keep], kf.scales[keep]
             start = stop
         return window[-1].pose
+
+    def _needs_fixed_keyframes(self) -> bool:
+        """Whether the window's adjustment holds the retired keyframes fixed (``window_fixed_keyframes``): only when
+        the wheels do not tie each of its keyframes to the one before. A wheel prior already keeps the window from
+        turning about its oldest keyframe (and fixed keyframes there cost a ground robot accuracy); without one, the
+        oldest keyframe alone holds the heading and it random-walks from window to window."""
+        if not self.config.window_fixed_keyframes or not self._retired:
+            return False
+        return len(self._wheel_priors(list(self.window))) < len(self.window) - 1
 
     def _wheel_priors(self, window: list[_WindowKeyframe]) -> list[PosePrior]:
         """Relative-pose priors between consecutive window keyframes from the wheel odometry: σ grows with the
