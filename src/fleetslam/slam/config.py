@@ -51,7 +51,16 @@ class OdometryConfig(ConfigModel):
     """Below this many PnP inliers tracking is lost (RTAB-Map Vis/MinInliers)."""
 
     match_ratio: float = Field(default=0.8, gt=0.0, le=1.0)
-    """Nearest-neighbour distance ratio when matching frame descriptors to the local map."""
+    """Nearest-neighbour distance ratio when matching frame descriptors to the local map. Measured with 0.95 and
+    ``window_fixed_keyframes=6`` (benchmarks/slam_matrix.py), procedural hall, 320×240: hand-held survey
+    3.48/3.17/7.42/4.50 → 3.33/2.33/2.78/2.94 cm at 5/10/15/30 Hz, figure eight 3.20/2.13/2.99/5.50 →
+    2.18/2.96/1.89/1.69 cm (its odometry alone 7.5/9.6/6.6/6.5 → 3.9/3.1/3.2/2.8 cm), loop_revisit
+    2.75/1.84/4.54/2.44 → 1.65/1.67/1.85/1.35 cm (11 of the 12 cells within 3 cm instead of 5); 640×480 survey,
+    5/10 Hz, hand-held 2.21/2.92 → 1.63/1.34 cm, ground at 5 Hz 1.39 → 1.13 cm, tracking 14-16 ms per frame
+    instead of 16-17 (fewer keyframes); but the ground robot's cells, all within 2 cm either way, moved by -0.53
+    to +0.49 cm
+    (loop_revisit 1.27/1.08/1.08/0.92 → 1.22/1.35/1.01/1.35, survey 1.09/0.99/1.16/1.76 → 1.58/1.17/1.41/1.46,
+    figure eight 1.01/1.03/1.43/1.65 → 0.92/0.99/1.23/1.12 cm). Hence not the default."""
 
     pnp_reprojection_error: float = Field(default=2.0, gt=0.0)
     """RANSAC inlier threshold in pixels (RTAB-Map Vis/PnPReprojError)."""
@@ -94,7 +103,15 @@ class OdometryConfig(ConfigModel):
     same_point_radius: float = Field(default=0.0, ge=0.0)
     """Landmarks the prediction projects within this many pixels (of a 640-pixel-wide image, scaled with the
     width) of a keypoint's nearest landmark are not its rival in the ratio test: they are the same point made
-    twice. 0 = every candidate competes."""
+    twice. 0 = every candidate competes (the default). Each keyframe makes landmarks of the keypoints it did not
+    track, and where the ratio test had rejected one, its landmark is made again beside the old one: from then on
+    the two reject each other. On the procedural hall's hand-held survey at 320×240 and 5 Hz, 6 finds 40 % more
+    guided matches (median 84 → 118 per frame). Measured with 6 (benchmarks/slam_matrix.py), procedural hall,
+    320×240, hand-held, survey 3.48/3.17/7.42/4.50 cm at 5/10/15/30 Hz and figure eight 3.20/2.13/2.99/5.50 cm
+    by default: alone 7.68/4.59/2.76/4.11 and 3.32/2.64/2.74/2.55 cm; with ``window_fixed_keyframes=6``
+    5.34/5.27/2.99/4.13 and 2.96/2.35/2.13/1.82 cm; with ``triangulation_keyframes=6`` 2.23/2.92/2.33/4.04 and
+    2.70/3.17/3.33/2.26 cm. Alone, the figure eight's odometry drifts less (7.5/9.6/6.6/6.5 → 4.6/3.1/3.4/3.2 cm)
+    but the survey's 5 and 10 Hz cells got worse; hence not the default."""
     max_prediction_error: float = Field(default=0.1, gt=0.0)
     """A pose farther than this from the motion prediction (metres per 1/30 s of frame interval) is a failure,
     not motion: a ground robot cannot jump that far between frames."""
@@ -135,14 +152,17 @@ class OdometryConfig(ConfigModel):
     window_fixed_keyframes: int = Field(default=0, ge=0)
     """Keyframes that left the window kept in its adjustment, fixed, where they observe its landmarks (ORB-SLAM's
     fixed covisible keyframes): the landmarks stay tied to where earlier keyframes saw them, so the window's
-    oldest keyframe is not the only anchor. 0 = off (the default). Without wheels, the window's oldest keyframe
+    oldest keyframe is not the only anchor. 0 = off (the default). Used only where no wheel prior ties the window
+    (decided at each adjustment from its keyframes: a wheel-odometry prior between every consecutive pair turns
+    it off), so a ground robot's results do not change, to the bit. Without wheels, the window's oldest keyframe
     is all that holds it, and at 320×240 on the procedural hall (30-60 tracked landmarks, a keyframe every few
     frames) the heading random-walks by 0.2° per keyframe. Measured with 6 (benchmarks/slam_matrix.py --set
     odometry.window_fixed_keyframes=6), procedural hall, 320×240, hand-held: survey 3.5/3.2/7.4/4.5 →
     2.5/2.7/3.9/3.0 cm at 5/10/15/30 Hz, figure eight 3.2/2.1/3.0/5.5 → 3.8/2.6/3.1/4.9 cm (4 of the 8 cells
     within 3 cm instead of 2), loop_revisit 2.7/1.8/2.4 → 2.9/1.8/2.1 cm at 5/10/30 Hz; 640×480 hand-held survey
-    2.2/2.9 → 2.5/1.7 cm at 5/10 Hz; ground robot, 320×240: survey at 5 Hz 1.09 → 1.27 cm, figure eight at 10 Hz
-    1.03 → 1.27 cm, loop_revisit at 5 Hz 1.27 → 1.50 cm. Not the default until the whole matrix is run."""
+    2.2/2.9 → 2.5/1.7 cm at 5/10 Hz. Before the wheel-prior rule it cost the ground robot up to 0.24 cm (survey at
+    5 Hz 1.09 → 1.27 cm, figure eight at 10 Hz 1.03 → 1.27 cm, loop_revisit at 5 Hz 1.27 → 1.50 cm). With
+    ``match_ratio=0.95`` as well, see there. Not the default: no setting tried beat the defaults on every cell."""
     window_iterations: int = Field(default=5, ge=1)
     """Levenberg–Marquardt iterations of the window's adjustment."""
     pixel_std: float = Field(default=1.0, gt=0.0)
