@@ -17,7 +17,9 @@ What is real and what is replicated:
   others, so copy k's keyframe i is where copy k-1's keyframe i is: every 10th keyframe (every 3rd of the first
   12) of each of its two agents carries a closure to the previous copy's same keyframe with the identity as
   relative pose (true by construction; it links the copies into one fleet, without it only copy 0 would be placed
-  and solved). The r2d2 copies are placed once the recorded closures between c3po and r2d2 begin (~100 s in).
+  and solved). The r2d2 copies are placed once the recorded closures between c3po and r2d2 are believed (~140 s
+  in, since the closures' precision rule): the replay covers the whole recording (206 updates per agent), and the
+  target counts only when every agent was placed (a run that ends first measured half the fleet).
 - **Paced**: each agent's recorded updates go out one per second (staggered by 1/32 s between agents), so that
   each agent adds ~1 keyframe/s (the SLAM node publishes its graph at most once a second); an agent's ``graph/full``
   is served from what was replayed of it, should the back-end miss an update.
@@ -36,7 +38,7 @@ With ``--offline``, the same replay goes straight into the back-end's ``FleetGra
 pacing simulated on each solve's CPU time (see :func:`run_offline`): the lag the solves add on an idle core, for a
 machine too busy for the live figures to say it.
 
-Usage: python benchmarks/fleet_backend.py [--copies 16] [--duration 130] [--out results/benchmarks] [--offline]
+Usage: python benchmarks/fleet_backend.py [--copies 16] [--duration S] [--out results/benchmarks] [--offline]
 """
 
 from __future__ import annotations
@@ -409,6 +411,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     record_["target_met"] = bool(
         record_["lag_s_p95"] < TARGET_LAG_S and record_["lag_s_max"] < TARGET_LAG_S
         and record_["keyframes_never_seen"] == 0 and duration >= args.min_duration
+        and record_["agents_placed"] == len(replicas)
     )  # fmt: skip
     if backend.returncode not in (0, -15) and err:
         print(err[-2000:], file=sys.stderr)
@@ -507,7 +510,10 @@ def run_offline(args: argparse.Namespace) -> dict[str, Any]:
         "load_average": [round(v, 2) for v in os.getloadavg()], "cores": os.cpu_count(),
     }  # fmt: skip
     record_["target_lag_s"] = TARGET_LAG_S
-    record_["target_met"] = bool(record_["lag_s_p95"] < TARGET_LAG_S and record_["lag_s_max"] < TARGET_LAG_S)
+    record_["target_met"] = bool(
+        record_["lag_s_p95"] < TARGET_LAG_S and record_["lag_s_max"] < TARGET_LAG_S
+        and record_["agents_placed"] == len(replicas)
+    )  # fmt: skip
     plot(lags, solves, Path(args.out) / "fleet_backend_offline.png", len(replicas))
     return record_
 
@@ -554,8 +560,8 @@ def main() -> None:
     parser.add_argument(
         "--duration",
         type=float,
-        default=130.0,
-        help="replay this long (s; at most the recording; its inter-agent closures begin at ~100 s)",
+        default=1e9,
+        help="replay this long (s; default and at most: the whole recording, 206 s; all its agents placed ~140 s in)",
     )
     parser.add_argument("--min-duration", type=float, default=60.0, help="shortest replay that counts (s)")
     parser.add_argument("--route", default="loop_revisit")
