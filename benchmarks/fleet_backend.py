@@ -278,7 +278,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     env = dict(os.environ, FLEETSLAM_ROUTER=endpoint)
     with Router([endpoint]), Context(router=endpoint, listen="tcp/127.0.0.1:0", environ={}) as ctx:
         backend = subprocess.Popen(
-            ["nice", "-n", "10", sys.executable, "-m", "fleetslam.cli.main", "fleet", "backend"],
+            ["nice", "-n", "10", sys.executable, "-m", "fleetslam.cli.main", "fleet", "backend",
+             *(a for setting in args.set for a in ("--set", setting))],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         try:
@@ -563,6 +564,8 @@ def main() -> None:
         default=1e9,
         help="replay this long (s; default and at most: the whole recording, 206 s; all its agents placed ~140 s in)",
     )
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of the back-end node (live runs), e.g. rate=2.0")  # fmt: skip
     parser.add_argument("--min-duration", type=float, default=60.0, help="shortest replay that counts (s)")
     parser.add_argument("--route", default="loop_revisit")
     parser.add_argument("--resolution", default="320x240")
