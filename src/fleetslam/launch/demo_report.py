@@ -249,9 +249,10 @@ def fleet_section(result: DemoResult) -> Section | None:
         error = invert(truth) @ placed
         table.rows.append([robot, f"{seconds:.0f}", f"{np.linalg.norm(error[:3, 3]):.3f}",
                            f"{np.degrees(rotation_angle(error)):.2f}"])  # fmt: skip
-    text = ("Each robot's map frame placed in the fleet frame (the reference robot's map) by its SLAM from inter-agent "
-            "loop closures, with no start pose given; error against the truth (each map frame where its SLAM "
-            "trajectory fits the ground truth best).")  # fmt: skip
+    text = ("Each robot's map frame placed in the fleet frame (the reference robot's map) from inter-agent loop "
+            "closures, with no start pose given: by its SLAM, then (`follow_fleet`) by the fleet back-end's joint "
+            "optimisation once it has corrected the robot's keyframes; its latest placement, error against the truth "
+            "(each map frame where its SLAM trajectory fits the ground truth best).")  # fmt: skip
     return Section("Fleet frame", table, text)
 
 
