@@ -11,12 +11,12 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 pytest.importorskip("mujoco")
 
-from fleetslam.geometry import invert, pose_from_planar, rotation_angle  # noqa: E402
-from fleetslam.robot.autopilot import Autopilot, get_route  # noqa: E402
-from fleetslam.sim.config import SimConfig  # noqa: E402
-from fleetslam.sim.plant import Plant  # noqa: E402
-from fleetslam.slam.config import OdometryConfig  # noqa: E402
-from fleetslam.slam.odometry import wheel_prior_std  # noqa: E402
+from fleetslam.geometry import invert, pose_from_planar, rotation_angle
+from fleetslam.robot.autopilot import Autopilot, get_route
+from fleetslam.sim.config import SimConfig
+from fleetslam.sim.plant import Plant
+from fleetslam.slam.config import OdometryConfig
+from fleetslam.slam.odometry import wheel_prior_std
 
 CAMERA_HZ = 30.0
 
