@@ -178,6 +178,16 @@ def wheel_motion_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[f
     )
 
 
+def wheel_prior_std(motion: NDArray[np.float64], wheel_drift: float) -> tuple[float, float]:
+    """How far off the wheels' measure of the motion between two keyframes is, as the window's adjustment weighs it:
+    translation (m) and rotation (rad) standard deviations, ``wheel_drift`` of the distance and of the turn, never
+    below a millimetre and a tenth of a degree."""
+    return (
+        wheel_drift * float(np.linalg.norm(motion[:3, 3])) + 1e-3,
+        wheel_drift * rotation_angle(motion) + np.radians(0.1),
+    )
+
+
 class VisualOdometry:
     """RGB-D frame-to-local-map odometry (the ``visual`` :class:`~fleetslam.slam.frontend.OdometryFrontEnd`).
     ``track`` is called once per frame, in order."""
@@ -702,8 +712,8 @@ class VisualOdometry:
         return len(self._wheel_priors(list(self.window))) < len(self.window) - 1
 
     def _wheel_priors(self, window: list[_WindowKeyframe]) -> list[PosePrior]:
-        """Relative-pose priors between consecutive window keyframes from the wheel odometry: σ grows with the
-        distance and turn (slip), never below a millimetre and a tenth of a degree."""
+        """Relative-pose priors between consecutive window keyframes from the wheel odometry (σ:
+        :func:`wheel_prior_std`)."""
         if not self.config.use_prior or self.config.wheel_drift <= 0:
             return []
         priors = []
@@ -712,8 +722,7 @@ class VisualOdometry:
             if a is None or b is None:
                 continue
             measured = invert(a) @ b
-            sigma_t = self.config.wheel_drift * float(np.linalg.norm(measured[:3, 3])) + 1e-3
-            sigma_r = self.config.wheel_drift * rotation_angle(measured) + np.radians(0.1)
+            sigma_t, sigma_r = wheel_prior_std(measured, self.config.wheel_drift)
             # The prior relates T_cw poses: T_c(k-1)_c(k) = T_cw(k-1)·T_cw(k)⁻¹ ⇒ measured is camera k in camera k-1.
             priors.append(PosePrior(k - 1, k, measured, np.diag([sigma_t**-2] * 3 + [sigma_r**-2] * 3)))
         return priors
