@@ -103,15 +103,18 @@ def maximum_clique(adjacency: Sequence[set[int]], among: set[int] | None = None)
     return best
 
 
-def fit_frames(source: Sequence[Pose], target: Sequence[Pose]) -> Pose:
+def fit_frames(source: Sequence[Pose] | NDArray[np.float64], target: Sequence[Pose] | NDArray[np.float64]) -> Pose:
     """``T`` with ``target[k] ≈ T · source[k]`` for every pair of poses, in the least-squares sense over each pose's
     position and axes (one pair is enough)."""
     if len(source) != len(target) or not len(source):
         raise ValueError(f"fit_frames needs two equally long, non-empty lists of poses: {len(source)}, {len(target)}")
-    return rigid_fit(
-        np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in source]),
-        np.vstack([_PROBES @ p[:3, :3].T + p[:3, 3] for p in target]),
-    )
+    return rigid_fit(_probes(source), _probes(target))
+
+
+def _probes(poses: Sequence[Pose] | NDArray[np.float64]) -> NDArray[np.float64]:
+    """The :data:`_PROBES` of every pose (a sequence or a stack of 4×4 poses), as one (4·N, 3) array."""
+    stack = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    return (np.einsum("pj,nij->npi", _PROBES, stack[:, :3, :3]) + stack[:, None, :3, 3]).reshape(-1, 3)
 
 
 def fit_alignment(closures: Sequence[PairClosure]) -> Pose:

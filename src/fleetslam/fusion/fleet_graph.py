@@ -44,7 +44,6 @@ Pure: no middleware. Poses are 4×4 ``T_map_camera`` (own map frame) or ``T_flee
 
 from __future__ import annotations
 
-import itertools
 import logging
 import time
 from collections.abc import Iterable
@@ -133,10 +132,26 @@ class AgentPlacement:
 
     T_fleet_map: Pose
     """Rigid fit of its corrected keyframe poses to its own ones: ``corrected ≈ T_fleet_map · own``."""
-    poses: dict[int, Pose]
-    """Keyframe id -> corrected ``T_fleet_camera``."""
-    stamps: dict[int, float]
-    """Keyframe id -> stamp (s)."""
+    ids: NDArray[np.int64]
+    """Its keyframes' ids, ascending."""
+    stack: NDArray[np.float64]
+    """Their corrected ``T_fleet_camera``, (N, 4, 4) in the order of ``ids``."""
+    stamp_array: NDArray[np.float64]
+    """Their stamps (s), in the order of ``ids``."""
+
+    @cached_property
+    def poses(self) -> dict[int, Pose]:
+        """Keyframe id -> corrected ``T_fleet_camera``."""
+        return dict(zip(self.ids.tolist(), self.stack, strict=True))
+
+    @cached_property
+    def stamps(self) -> dict[int, float]:
+        """Keyframe id -> stamp (s)."""
+        return dict(zip(self.ids.tolist(), self.stamp_array.tolist(), strict=True))
+
+    def moved(self, T: Pose) -> AgentPlacement:
+        """The placement expressed in another frame: ``T ·`` every pose."""
+        return AgentPlacement(T @ self.T_fleet_map, self.ids, np.matmul(T, self.stack), self.stamp_array)
 
 
 @dataclass(frozen=True)
@@ -163,11 +178,39 @@ class FleetSolution:
     """Variables of this solve's GNC (0: none ran); at most ``gnc_budget`` unless one closure's agents need more."""
 
 
+@dataclass(frozen=True)
+class _Keyframes:
+    """An agent's own keyframes as arrays (ascending ids): what every solve reads of its graph."""
+
+    ids: NDArray[np.int64]
+    poses: NDArray[np.float64]
+    """``T_map_camera``, (N, 4, 4)."""
+    stamps: NDArray[np.float64]
+
+
 @dataclass
 class _Agent:
     mirror: GraphMirror[ClosureReport]
     slot: int
     restarts: int = 0
+    _keyframes: _Keyframes | None = None
+    _version: tuple[int, int, int, int] = (0, 0, 0, 0)
+    odometry: dict[bytes, Any] = field(default_factory=dict)
+    """Its chain's odometry factors (a ``NonlinearFactorGraph``) by the chain's positions, for this version of its
+    graph: rebuilding them every solve for every agent cost more than the optimisation."""
+
+    def keyframes(self) -> _Keyframes:
+        """Its keyframes as arrays, made again only when its graph changed."""
+        mirror = self.mirror
+        version = (mirror.epoch, mirror.sequence, len(mirror.poses), id(mirror.poses))
+        if self._keyframes is None or version != self._version:
+            ids = sorted(mirror.poses)
+            poses = np.stack([mirror.poses[i] for i in ids]) if ids else np.zeros((0, 4, 4))
+            stamps = np.array([mirror.stamps.get(i, 0.0) for i in ids], dtype=np.float64)
+            self._keyframes = _Keyframes(np.array(ids, dtype=np.int64), poses, stamps)
+            self._version = version
+            self.odometry.clear()
+        return self._keyframes
 
 
 @dataclass
@@ -188,6 +231,15 @@ class FleetGraph:
     inlier_probability: float = 0.99
     """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
     max_iterations: int = 20
+    warm_iterations: int = 1
+    """Levenberg–Marquardt iterations of a solve that starts from the previous one's result with no agent newly
+    placed (iSAM2 likewise takes one step per update): from there one step reaches the optimum to a few parts in
+    10⁶ of the error (32 agents of ``benchmarks/fleet_backend.py``: 2700 variables, 215.107 → 211.247 after one step
+    and after two), and each step of a graph that large costs 60–120 ms of CPU. A step that still lowered the error
+    by more than ``relative_error_tol`` is followed by another solve, so a graph that stopped changing still
+    converges."""
+    relative_error_tol: float = 1e-5
+    """Relative decrease of the error under which a solve counts as converged (GTSAM's default)."""
     """Levenberg–Marquardt iterations per solve (each GNC step too)."""
     gnc_budget: int = 200
     """Most variables of one solve's GNC: closures waiting for a verdict are judged a group of agents at a time
@@ -220,6 +272,12 @@ class FleetGraph:
     _odometry_noise: dict[int, Any] = field(default_factory=dict)
     """Noise model of an odometry factor over this many keyframe steps."""
     _solved_reference: str | None = None
+    _warm: Any = None
+    """The last solve's result (``gtsam.Values``, before its re-expression in the fleet frame): the next one starts
+    from it, all its variables at once."""
+    _closure_factors: dict[int, tuple[FleetClosure, tuple[int, int], Any]] = field(default_factory=dict)
+    """``id(closure)`` -> the closure, its agents' slots and its factor (made once: the noise model of a closure's
+    covariance is costly, and every solve adds every closure)."""
 
     # -- input ---------------------------------------------------------------------------------------------------
     def apply(self, agent: str, update: GraphUpdate[ClosureReport]) -> bool:
@@ -255,6 +313,7 @@ class FleetGraph:
         self._verdicts = {k: v for k, v in self._verdicts.items() if agent not in (k[0], k[2])}
         if was_reference:
             self._solution.clear()  # the fleet frame itself is new
+            self._warm = None
         self.changed = True
 
     def reference_agent(self) -> str | None:
@@ -342,14 +401,14 @@ class FleetGraph:
         if reference != self._solved_reference:
             # The fleet frame is another agent's map frame now (an alphabetically earlier agent appeared, or the
             # reference restarted): the previous solution is in the old frame and must not warm-start the new one.
-            self._solution, self._verdicts, self._pending_since = {}, {}, {}
+            self._solution, self._verdicts, self._pending_since, self._warm = {}, {}, {}, None
             self._solved_reference = reference
         closures = self.closures()
         self._update_pairs(closures.values())
         connected = self.connected()
         candidates = {a for a in connected if self.agents[a].mirror.poses}
         if reference not in candidates:
-            self._solution = {}
+            self._solution, self._warm = {}, None
             return FleetSolution({}, [], [], False, 0, time.perf_counter() - started, time.thread_time() - started_cpu)
         between = [c for c in closures.values() if c.a in candidates and c.b in candidates and c.a != c.b]
         self._verdicts = {k: v for k, v in self._verdicts.items() if k in closures}
@@ -368,31 +427,44 @@ class FleetGraph:
         placed |= group
         used = [c for c in between if c.a in placed and c.b in placed and self._verdicts.get(c.key, False)]
         g = _gtsam()
-        graph, values = g.NonlinearFactorGraph(), g.Values()
+        graph = g.NonlinearFactorGraph()
+        values = g.Values(self._warm) if self._warm is not None else g.Values()
+        warm = np.asarray(values.keys(), dtype=np.int64)
         endpoints = _endpoints(used)
-        chains = {agent: self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference)
-                  for agent in sorted(placed)}  # fmt: skip
+        agents = sorted(placed)
+        chains = [self._add_chain(graph, values, agent, endpoints.get(agent, set()), initial[agent], reference,
+                                  warm=warm)
+                  for agent in agents]  # fmt: skip
+        own = [self.agents[agent].keyframes() for agent in agents]
+        chain_keys = [
+            self._keys(agent, keyframes.ids[chain]) for agent, keyframes, chain in zip(agents, own, chains, strict=True)
+        ]
+        for key in np.setdiff1d(warm, np.concatenate(chain_keys)).tolist():  # no longer a variable
+            values.erase(key)
         self._add_closures(graph, used)
-        result = g.LevenbergMarquardtOptimizer(graph, values, self._lm_params()).optimize()
-        solution = {}
-        for agent in sorted(placed):
-            mirror = self.agents[agent].mirror
-            solved = {i: np.asarray(result.atPose3(self._key(agent, i)).matrix(), dtype=np.float64)
-                      for i in chains[agent]}  # fmt: skip
-            corrected = _fill_between(mirror.poses, chains[agent], solved)
-            ids = sorted(corrected)
-            T_fleet_map = fit_frames([mirror.poses[i] for i in chains[agent]], [solved[i] for i in chains[agent]])
-            solution[agent] = AgentPlacement(T_fleet_map, corrected, {i: mirror.stamps.get(i, 0.0) for i in ids})
+        iterations = self.max_iterations if self._warm is None or placed - set(self._solution) else self.warm_iterations
+        optimizer = g.LevenbergMarquardtOptimizer(graph, values, self._lm_params(iterations))
+        start_error = optimizer.error()
+        result = optimizer.optimize()
+        converging = start_error - optimizer.error() > self.relative_error_tol * start_error
+        if iterations < self.max_iterations and converging:
+            self.changed = True  # the next solve goes on from here
+        self._warm = result
+        solved = _Solved.of(result)
+        solved_chains = [solved.poses(keys) for keys in chain_keys]
+        corrected = _fill_between([k.poses for k in own], chains, solved_chains)
+        solution = {
+            agent: AgentPlacement(fit_frames(keyframes.poses[chain], solved_chain), keyframes.ids, poses,
+                                  keyframes.stamps)
+            for agent, keyframes, chain, solved_chain, poses in zip(agents, own, chains, solved_chains, corrected,
+                                                                strict=True)
+        }  # fmt: skip
         # The fleet frame is the reference's map frame: its own rigid fit is the identity by definition. The solve
         # bends its chain too (the prior holds its first keyframe only), and that fit moved by centimetres and
         # tenths of a degree from solve to solve, re-landing every map with it; everything is re-expressed so that
         # the reference's fit stays the identity and only the others' placements move relative to it.
-        to_fleet = np.linalg.inv(solution[reference].T_fleet_map)
-        solution = {
-            agent: AgentPlacement(to_fleet @ p.T_fleet_map, {i: to_fleet @ pose for i, pose in p.poses.items()},
-                                  p.stamps)
-            for agent, p in solution.items()
-        }  # fmt: skip
+        to_fleet = invert(solution[reference].T_fleet_map)
+        solution = {agent: placement.moved(to_fleet) for agent, placement in solution.items()}
         self._solution = solution
         among = [c for c in between if c.a in placed and c.b in placed]
         kept = [c for c in among if self._verdicts.get(c.key) is True]
@@ -409,8 +481,7 @@ class FleetGraph:
         its agents is placed or taken already (the others are held where they are placed). Then, within the budget,
         the placed agents joined to them by closures, breadth first."""
         endpoints = _endpoints(between)
-        size = {a: len(self._chain(sorted(self.agents[a].mirror.poses), endpoints.get(a, set())))
-                for a in endpoints}  # fmt: skip
+        size = {a: len(self._chain(self.agents[a].keyframes().ids, endpoints.get(a, set()))) for a in endpoints}
         group: set[str] = set()
         variables, grew = 0, True
         while grew:  # again: a closure anchored by an agent taken after it was looked at
@@ -475,78 +546,118 @@ class FleetGraph:
         result = optimizer.optimize()
         weights = np.asarray(optimizer.getWeights())[known:]
         self._verdicts.update({c.key: bool(w > 0.5) for c, w in zip(closures, weights, strict=True)})
+        solved = _Solved.of(result)
         fits = {}
         for agent, chain in chains.items():
-            own = self.agents[agent].mirror.poses
-            solved = [np.asarray(result.atPose3(self._key(agent, i)).matrix()) for i in chain]
-            fits[agent] = fit_frames([own[i] for i in chain], solved)
+            own = self.agents[agent].keyframes()
+            fits[agent] = fit_frames(own.poses[chain], solved.poses(self._keys(agent, own.ids[chain])))
         return fits, sum(len(chain) for chain in chains.values())
 
     def _add_chain(self, graph: Any, values: Any, agent: str, endpoints: set[int], T_fleet_map: Pose,
-                   reference: str, *, as_placed: bool = False) -> list[int]:  # fmt: skip
+                   reference: str, *, as_placed: bool = False, warm: NDArray[np.int64] | None = None
+                   ) -> NDArray[np.intp]:  # fmt: skip
         """``agent``'s keyframe chain into ``graph``: its variables (warm-started from the last solution, new ones
         where ``T_fleet_map`` puts them), the odometry between them, the prior on its first one (the reference's: its
         own pose, or with ``as_placed`` where the last solution put it, the frame the agents held there are in).
-        Returns the chain."""
+        ``warm``: keys (ascending) that ``values`` holds already, from the last solve's result; a new keyframe between
+        them starts where its predecessor's correction puts it. Returns the chain: positions in the agent's
+        :meth:`_Agent.keyframes`."""
         g = _gtsam()
-        own = self.agents[agent].mirror.poses
-        ids = sorted(own)
-        chain = self._chain(ids, endpoints)
+        state = self.agents[agent]
+        own = state.keyframes()
+        chain = self._chain(own.ids, endpoints)
+        ids = own.ids[chain]
+        guesses = np.matmul(T_fleet_map, own.poses[chain])
         previous = self._solution.get(agent)
-        for i in chain:
-            guess = previous.poses.get(i) if previous is not None else None
-            values.insert(self._key(agent, i), g.Pose3(guess if guess is not None else T_fleet_map @ own[i]))
-        first = self._key(agent, chain[0])
+        known = np.zeros(len(chain), dtype=bool)
+        if previous is not None and len(previous.ids):
+            rows = np.minimum(np.searchsorted(previous.ids, ids), len(previous.ids) - 1)
+            known = previous.ids[rows] == ids
+            guesses[known] = previous.stack[rows[known]]
+        keys = self._keys(agent, ids).tolist()
+        fresh = np.ones(len(chain), dtype=bool) if warm is None else ~np.isin(keys, warm)
+        for k in np.flatnonzero(fresh).tolist():
+            guess = guesses[k]
+            if k > 0 and not fresh[k - 1]:  # its predecessor as the last solve left it, moved as its own graph says
+                before = np.asarray(values.atPose3(keys[k - 1]).matrix())
+                guess = before @ invert(own.poses[chain[k - 1]]) @ own.poses[chain[k]]
+            values.insert(keys[k], g.Pose3(guess))
         if agent == reference:
-            anchor = own[chain[0]]
-            if as_placed and previous is not None and chain[0] in previous.poses:
-                anchor = previous.poses[chain[0]]
-            graph.add(g.PriorFactorPose3(first, g.Pose3(anchor), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
+            anchor = guesses[0] if as_placed and known[0] else own.poses[chain[0]]
+            graph.add(g.PriorFactorPose3(keys[0], g.Pose3(anchor), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
         else:
-            graph.add(g.PriorFactorPose3(first, values.atPose3(first), g.noiseModel.Isotropic.Sigma(6, 100.0)))
-        index = {i: k for k, i in enumerate(ids)}
-        for (i, j), relative in zip(itertools.pairwise(chain), _steps([own[i] for i in chain]), strict=True):
-            steps = index[j] - index[i]
-            if steps not in self._odometry_noise:  # the steps' errors add up: sigma grows with their square root
-                sigmas = _sigmas(self.odometry_sigma) * np.sqrt(steps)
-                self._odometry_noise[steps] = g.noiseModel.Diagonal.Sigmas(sigmas)
-            graph.add(g.BetweenFactorPose3(self._key(agent, i), self._key(agent, j), g.Pose3(relative),
-                                           self._odometry_noise[steps]))  # fmt: skip
+            graph.add(g.PriorFactorPose3(keys[0], g.Pose3(guesses[0]), g.noiseModel.Isotropic.Sigma(6, 100.0)))
+        graph.push_back(self._odometry(state, chain))
         return chain
+
+    def _odometry(self, state: _Agent, chain: NDArray[np.intp]) -> Any:
+        """The odometry factors between consecutive keyframes of ``chain`` (positions in ``state``'s keyframes), from
+        the agent's own poses; made once per version of its graph and chain."""
+        cache_key = chain.tobytes()
+        factors = state.odometry.get(cache_key)
+        if factors is not None:
+            return factors
+        g = _gtsam()
+        own = state.keyframes()
+        factors = g.NonlinearFactorGraph()
+        keys = ((state.slot << _SLOT_BITS) | own.ids[chain]).tolist()
+        spans = np.diff(chain).tolist()
+        for a, b, span, relative in zip(keys[:-1], keys[1:], spans, _steps(own.poses[chain]), strict=True):
+            if span not in self._odometry_noise:  # the steps' errors add up: sigma grows with their square root
+                self._odometry_noise[span] = g.noiseModel.Diagonal.Sigmas(_sigmas(self.odometry_sigma) * np.sqrt(span))
+            factors.add(g.BetweenFactorPose3(a, b, g.Pose3(relative), self._odometry_noise[span]))
+        if len(state.odometry) >= 4:  # the solve's chain and GNC's (other closures' keyframes) alternate
+            state.odometry.clear()
+        state.odometry[cache_key] = factors
+        return factors
 
     @property
     def solution(self) -> dict[str, AgentPlacement]:
         """The agents placed by the last solve."""
         return self._solution
 
-    def _chain(self, ids: list[int], endpoints: set[int]) -> list[int]:
-        """The keyframes solved for (``ids`` sorted): the first, the ``recent_keyframes`` newest, every
-        ``coarse_stride``-th and every closure's; the others follow the solved ones on either side."""
-        recent = len(ids) - self.recent_keyframes
-        return [i for k, i in enumerate(ids) if k % self.coarse_stride == 0 or k >= recent or i in endpoints]
+    def _chain(self, ids: NDArray[np.int64], endpoints: set[int]) -> NDArray[np.intp]:
+        """Positions in ``ids`` (ascending) of the keyframes solved for: the first, the ``recent_keyframes`` newest,
+        every ``coarse_stride``-th and every closure's; the others follow the solved ones on either side."""
+        position = np.arange(len(ids))
+        keep = (position % self.coarse_stride == 0) | (position >= len(ids) - self.recent_keyframes)
+        if endpoints:
+            keep |= np.isin(ids, np.fromiter(endpoints, dtype=np.int64, count=len(endpoints)))
+        return np.flatnonzero(keep)
 
     def _add_closures(self, graph: Any, closures: Iterable[FleetClosure]) -> None:
         """One ``BetweenFactorPose3`` per closure, with its own covariance (plus ``closure_sigma_floor``), or
         ``closure_sigma`` when it came without one: an imprecise closure weighs less, and GNC judges it by its own
         uncertainty."""
         g = _gtsam()
-        noise = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
-        floor = np.diag(_sigmas(self.closure_sigma_floor) ** 2)
+        cache = self._closure_factors
         for c in closures:
-            model = noise
-            if c.covariance is not None:
-                rotation_first = np.asarray(c.covariance, np.float64)[np.ix_(_ROTATION_FIRST, _ROTATION_FIRST)]
-                model = g.noiseModel.Gaussian.Covariance(rotation_first + floor)
-            graph.add(g.BetweenFactorPose3(self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative), model))
+            slots = (self.agents[c.a].slot, self.agents[c.b].slot)
+            entry = cache.get(id(c))
+            if entry is None or entry[0] is not c or entry[1] != slots:
+                model = g.noiseModel.Diagonal.Sigmas(_sigmas(self.closure_sigma))
+                if c.covariance is not None:
+                    rotation_first = np.asarray(c.covariance, np.float64)[np.ix_(_ROTATION_FIRST, _ROTATION_FIRST)]
+                    model = g.noiseModel.Gaussian.Covariance(
+                        rotation_first + np.diag(_sigmas(self.closure_sigma_floor) ** 2)
+                    )
+                factor = g.BetweenFactorPose3(
+                    self._key(c.a, c.a_id), self._key(c.b, c.b_id), g.Pose3(c.relative), model
+                )
+                entry = cache[id(c)] = (c, slots, factor)
+            graph.add(entry[2])
 
-    def _lm_params(self) -> Any:
+    def _lm_params(self, iterations: int | None = None) -> Any:
         """Levenberg–Marquardt's parameters of every solve (GNC's inner steps too)."""
         lm = _gtsam().LevenbergMarquardtParams()
-        lm.setMaxIterations(self.max_iterations)
+        lm.setMaxIterations(iterations or self.max_iterations)
         return lm
 
     def _key(self, agent: str, keyframe_id: int) -> int:
         return (self.agents[agent].slot << _SLOT_BITS) | int(keyframe_id)
+
+    def _keys(self, agent: str, ids: NDArray[np.int64]) -> NDArray[np.int64]:
+        return (self.agents[agent].slot << _SLOT_BITS) | ids
 
 
 def _endpoints(closures: Iterable[FleetClosure]) -> dict[str, set[int]]:
@@ -558,32 +669,64 @@ def _endpoints(closures: Iterable[FleetClosure]) -> dict[str, set[int]]:
     return found
 
 
-def _fill_between(own: dict[int, Pose], chain: list[int], solved: dict[int, Pose]) -> dict[int, Pose]:
-    """Every keyframe's corrected pose: the solved ones as solved; one between two solved keyframes moves by their
-    corrections (``T_corrected · T_own⁻¹``) interpolated by its place between them (the newest are all solved)."""
-    ids = sorted(own)
-    index = {i: k for k, i in enumerate(ids)}
-    anchors = np.array([index[i] for i in chain])
-    free = np.setdiff1d(np.arange(len(ids)), anchors)
-    corrected = dict(solved)
-    if not len(free):
+def _fill_between(
+    own: list[NDArray[np.float64]], chains: list[NDArray[np.intp]], solved: list[NDArray[np.float64]]
+) -> list[NDArray[np.float64]]:
+    """Every keyframe's corrected pose, for each agent (``own``: its own poses, (N, 4, 4)): those of its chain
+    (positions in ``own``, ascending) as solved; one between two solved keyframes moves by their corrections
+    (``T_corrected · T_own⁻¹``) interpolated by its place between them (the newest are all solved). All agents at
+    once: the rotations' interpolation costs more per call than per keyframe."""
+    corrected, free, fractions, before, after = [], [], [], [], []
+    for poses, chain, solved_chain in zip(own, chains, solved, strict=True):
+        out = np.empty_like(poses)
+        out[chain] = solved_chain
+        corrected.append(out)
+        between = np.setdiff1d(np.arange(len(poses)), chain)
+        free.append(between)
+        if not len(between):
+            continue
+        corrections = np.matmul(solved_chain, invert(poses[chain]))
+        segment = np.searchsorted(chain, between) - 1
+        fractions.append((between - chain[segment]) / (chain[segment + 1] - chain[segment]))
+        before.append(corrections[segment])
+        after.append(corrections[segment + 1])
+    if not fractions:
         return corrected
-    corrections = np.stack([solved[i] @ invert(own[i]) for i in chain])
-    segment = np.searchsorted(anchors, free) - 1
-    fraction = (free - anchors[segment]) / (anchors[segment + 1] - anchors[segment])
-    before, after = corrections[segment], corrections[segment + 1]
-    turn = Rotation.from_matrix(np.swapaxes(before[:, :3, :3], 1, 2) @ after[:, :3, :3]).as_rotvec()
-    moved = np.broadcast_to(np.eye(4), (len(free), 4, 4)).copy()
-    moved[:, :3, :3] = before[:, :3, :3] @ Rotation.from_rotvec(turn * fraction[:, None]).as_matrix()
-    moved[:, :3, 3] = (1.0 - fraction)[:, None] * before[:, :3, 3] + fraction[:, None] * after[:, :3, 3]
-    poses = moved @ np.stack([own[ids[k]] for k in free])
-    corrected.update({ids[k]: pose for k, pose in zip(free, poses, strict=True)})
-    return dict(sorted(corrected.items()))
+    fraction, start, end = np.concatenate(fractions), np.concatenate(before), np.concatenate(after)
+    turn = Rotation.from_matrix(np.swapaxes(start[:, :3, :3], 1, 2) @ end[:, :3, :3]).as_rotvec()
+    moved = np.broadcast_to(np.eye(4), (len(fraction), 4, 4)).copy()
+    moved[:, :3, :3] = start[:, :3, :3] @ Rotation.from_rotvec(turn * fraction[:, None]).as_matrix()
+    moved[:, :3, 3] = (1.0 - fraction)[:, None] * start[:, :3, 3] + fraction[:, None] * end[:, :3, 3]
+    offset = 0
+    for out, poses, between in zip(corrected, own, free, strict=True):
+        out[between] = moved[offset : offset + len(between)] @ poses[between]
+        offset += len(between)
+    return corrected
 
 
-def _steps(poses: list[Pose]) -> NDArray[np.float64]:
+@dataclass(frozen=True)
+class _Solved:
+    """An optimiser's result as arrays: its keys (ascending) and their poses."""
+
+    keys: NDArray[np.int64]
+    stack: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, result: Any) -> _Solved:
+        rows = np.asarray(_gtsam().utilities.extractPose3(result), dtype=np.float64)  # in key order
+        stack = np.broadcast_to(np.eye(4), (len(rows), 4, 4)).copy()
+        stack[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
+        stack[:, :3, 3] = rows[:, 9:]
+        return cls(np.asarray(result.keys(), dtype=np.int64), stack)
+
+    def poses(self, keys: NDArray[np.int64]) -> NDArray[np.float64]:
+        """The poses of ``keys`` (each must be in the result)."""
+        return self.stack[np.searchsorted(self.keys, keys)]
+
+
+def _steps(poses: list[Pose] | NDArray[np.float64]) -> NDArray[np.float64]:
     """``T_k⁻¹ · T_k+1`` of consecutive poses, all at once."""
-    stack = np.stack(poses)
+    stack = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
     rotation_t = np.swapaxes(stack[:-1, :3, :3], 1, 2)
     steps = np.broadcast_to(np.eye(4), (len(poses) - 1, 4, 4)).copy()
     steps[:, :3, :3] = rotation_t @ stack[1:, :3, :3]
