@@ -118,6 +118,30 @@ def test_pose_and_transform_round_trip() -> None:
     assert cv.pose_msgs([]) == []
 
 
+@pytest.mark.parametrize("frame_id", ["", "m", "map", "fleet", "fleet_1", "fleet_12", "r2d2/map", "flotte_ü"])
+@pytest.mark.parametrize("count", [0, 1, 2, 7])
+def test_path_cdr_is_the_bytes_of_the_path_message(frame_id: str, count: int) -> None:
+    # Every length of frame name puts the first pose's doubles at another alignment.
+    rng = np.random.default_rng(count)
+    poses = np.stack([random_pose(rng) for _ in range(count)]) if count else np.zeros((0, 4, 4))
+    stamps = rng.integers(0, 2_000_000_000 * 10**9, count)
+    stamped = get_type("geometry_msgs/msg/PoseStamped")
+    each = [stamped(header=header(frame_id, int(t)), pose=p)
+            for t, p in zip(stamps, cv.pose_msgs(list(poses)), strict=True)]  # fmt: skip
+    message = get_type("nav_msgs/msg/Path")(header=header(frame_id, 1_700_000_000_123_456_789), poses=each)
+    data = cv.path_cdr(frame_id, 1_700_000_000_123_456_789, poses, stamps)
+    assert bytes(data) == serialize(message, "nav_msgs/msg/Path")
+    back = deserialize(bytes(data), "nav_msgs/msg/Path")
+    assert [ns_from_stamp(p.header.stamp) for p in back.poses] == stamps.tolist()
+    for pose, msg in zip(poses, back.poses, strict=True):
+        np.testing.assert_allclose(cv.pose_matrix(msg.pose), pose, atol=1e-12)
+    with pytest.raises(ValueError, match="stamps"):
+        cv.path_cdr(frame_id, 0, poses, np.zeros(count + 1, dtype=np.int64))
+    if count:
+        with pytest.raises(ValueError, match="stamp"):  # builtin_interfaces/Time holds int32 seconds
+            cv.path_cdr(frame_id, 0, poses, np.full(count, 2**62))
+
+
 def test_planar_pose_is_the_pose_of_its_yaw() -> None:
     for yaw in (-3.0, -0.5, 0.0, 1.2, math.pi):
         msg = cv.planar_pose_msg(1.5, -2.0, yaw)

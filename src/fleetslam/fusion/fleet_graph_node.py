@@ -37,8 +37,8 @@ from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolutio
 from fleetslam.fusion.graph_exchange import GraphUpdate, graph_update_of
 from fleetslam.fusion.graph_fetcher import GraphFetcher
 from fleetslam.middleware import Node
-from fleetslam.msg.conversions import pose_matrix, pose_msgs, transform_msg
-from fleetslam.msg.typesys import get_type, header, serialize
+from fleetslam.msg.conversions import path_cdr, pose_matrix, transform_msg
+from fleetslam.msg.typesys import get_type, header
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +184,6 @@ class FleetGraphNode:
         self._path_pubs: dict[str, Any] = {}
         self._path_published: dict[str, tuple[list[int], np.ndarray, float]] = {}
         """Per agent, the keyframe ids and positions of the path last sent and when the next may go out."""
-        """Per agent, the keyframe ids and positions of the path last sent."""
         placements = topics.FLEET_PLACEMENTS
         self.placements_pub = node.create_publisher(placements.type, placements.name, placements.qos())
         diagnostics = topics.FLEET_BACKEND_DIAGNOSTICS
@@ -342,26 +341,20 @@ class FleetGraphNode:
         ``path_bytes_per_s``."""
         if self.solution is None:
             return
-        frame = self.config.frame_id
-        pose_stamped = get_type("geometry_msgs/msg/PoseStamped")
-        path_type = get_type("nav_msgs/msg/Path")
         now = time.monotonic()
         for agent, placement in self.solution.placements.items():
             publisher = self._path_pubs.get(agent)
             if publisher is None or not publisher.matched_subscriptions:
                 continue
-            ids = sorted(placement.poses)
-            positions = np.array([placement.poses[i][:3, 3] for i in ids])
+            ids = placement.ids.tolist()
+            positions = placement.stack[:, :3, 3]
             sent = self._path_published.get(agent)
             if sent is not None and (
                 now < sent[2]
                 or (sent[0] == ids and (not ids or np.max(np.abs(positions - sent[1])) <= self.config.path_tolerance))
             ):
                 continue
-            stamped = [
-                pose_stamped(header=header(frame, round(placement.stamps[i] * 1e9)), pose=pose)
-                for i, pose in zip(ids, pose_msgs([placement.poses[i] for i in ids]), strict=True)
-            ]
-            data = serialize(path_type(header=header(frame, self.node.now_ns()), poses=stamped), "nav_msgs/msg/Path")
+            stamps_ns = np.round(placement.stamp_array * 1e9).astype(np.int64)
+            data = path_cdr(self.config.frame_id, self.node.now_ns(), placement.stack, stamps_ns)
             publisher.publish_raw(data)
             self._path_published[agent] = (ids, positions, now + len(data) / self.config.path_bytes_per_s)

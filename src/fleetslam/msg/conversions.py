@@ -1,7 +1,8 @@
 """Conversions between ROS messages and arrays: the one place where fleetslam builds or reads them.
 
 - poses: ``geometry_msgs/Pose`` ⇄ 4×4 (:func:`pose_msg`, :func:`pose_msgs`, :func:`planar_pose_msg`,
-  :func:`pose_matrix`); ``geometry_msgs/Transform`` → 4×4 (:func:`transform_matrix`);
+  :func:`pose_matrix`); ``geometry_msgs/Transform`` → 4×4 (:func:`transform_matrix`); a ``nav_msgs/Path`` of
+  stamped 4×4 poses straight to its CDR bytes (:func:`path_cdr`);
 - TF: ``tf2_msgs/TFMessage`` of one transform (:func:`transform_msg`, :func:`tf_msg`);
 - odometry: ``nav_msgs/Odometry`` (:func:`odometry_msg`; its pose back with :func:`pose_matrix`);
 - images: ``sensor_msgs/Image`` ⇄ arrays honouring ``step`` and ``is_bigendian`` (:func:`image_msg`,
@@ -18,6 +19,7 @@ Arrays read from a received message are, where the layout allows, read-only view
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -38,6 +40,7 @@ __all__ = [
     "image_to_array",
     "intrinsics_from_camera_info",
     "odometry_msg",
+    "path_cdr",
     "planar_pose_msg",
     "pointcloud2_msg",
     "pointcloud2_rgb",
@@ -89,6 +92,52 @@ def pose_msgs(poses: Sequence[ArrayLike]) -> list[Any]:
     stacked = np.stack([np.asarray(p, dtype=np.float64) for p in poses])
     quats = Rotation.from_matrix(stacked[:, :3, :3]).as_quat()  # x, y, z, w
     return [_pose(t.tolist(), q.tolist()) for t, q in zip(stacked[:, :3, 3], quats, strict=True)]
+
+
+def path_cdr(frame_id: str, stamp_ns: int, poses: NDArray[np.float64], stamps_ns: NDArray[np.int64]) -> bytearray:
+    """The CDR bytes (as :func:`~fleetslam.msg.typesys.serialize` writes them) of a ``nav_msgs/Path`` in
+    ``frame_id`` stamped ``stamp_ns``, of ``poses`` ((N, 4, 4); quaternions as :func:`pose_msgs`) each stamped with
+    its ``stamps_ns`` in the same frame. Written from arrays: building the N ``PoseStamped`` objects for rosbags took
+    14 µs per pose, and the fleet back-end sends every agent's path again as it corrects it."""
+    from scipy.spatial.transform import Rotation
+
+    stack = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    if len(stamps) != len(stack):
+        raise ValueError(f"path_cdr: {len(stack)} poses but {len(stamps)} stamps")
+    name = frame_id.encode() + b"\0"
+    head = bytearray(b"\x00\x01\x00\x00")  # CDR, little-endian
+    head += struct.pack("<iII", stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000, len(name)) + name
+    head += bytes(-(len(head) - 4) % 4)
+    head += struct.pack("<I", len(stack))
+    if not len(stack):
+        return head
+    values = np.empty((len(stack), 7))
+    values[:, :3] = stack[:, :3, 3]
+    values[:, 3:] = Rotation.from_matrix(stack[:, :3, :3]).as_quat()
+    seconds, nanoseconds = np.divmod(stamps, 1_000_000_000)
+    if seconds.min() < -(2**31) or seconds.max() >= 2**31:
+        raise ValueError(
+            f"path_cdr: a stamp beyond builtin_interfaces/Time's int32 seconds: {stamps.min()}..{stamps.max()} ns"
+        )
+    # An element's stamp, frame and pose (8-aligned doubles): every element after the first starts 8-aligned, the
+    # first may start 4 bytes past, and then its pose lies 4 bytes later relative to its start.
+    first_shift = (len(head) - 4) % 8
+    pose_at = -(-(12 + len(name)) // 8) * 8
+    element = np.dtype({"names": ["sec", "nanosec", "length", "frame", "pose"],
+                        "formats": ["<i4", "<u4", "<u4", f"S{len(name)}", ("<f8", 7)],
+                        "offsets": [0, 4, 8, 12, pose_at], "itemsize": pose_at + 56})  # fmt: skip
+    first_size = -(-(first_shift + 12 + len(name)) // 8) * 8 - first_shift + 56
+    out = np.zeros(len(head) + first_size + (len(stack) - 1) * element.itemsize, dtype=np.uint8)
+    out[: len(head)] = np.frombuffer(head, dtype=np.uint8)
+    first = struct.pack("<iII", seconds[0], nanoseconds[0], len(name)) + name
+    first += bytes(first_size - 56 - len(first)) + values[0].astype("<f8").tobytes()
+    out[len(head) : len(head) + first_size] = np.frombuffer(first, dtype=np.uint8)
+    rest = out[len(head) + first_size :].view(element)
+    rest["sec"], rest["nanosec"], rest["length"] = seconds[1:], nanoseconds[1:], len(name)
+    rest["frame"] = name
+    rest["pose"] = values[1:]
+    return bytearray(out.tobytes())
 
 
 def planar_pose_msg(x: float, y: float, yaw: float) -> Any:
