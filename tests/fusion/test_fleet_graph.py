@@ -125,6 +125,29 @@ def test_new_keyframes_reuse_the_kept_closures_without_gnc() -> None:
     np.testing.assert_allclose(solution.placements["c3po"].poses[STEPS - 1], c3po[STEPS - 1], atol=1e-3)
 
 
+def test_warm_solves_take_one_step_each_and_converge_to_the_full_solve() -> None:
+    c3po, r2d2 = _truth()
+    bent = _drifted(r2d2, R2D2_MAP, np.radians(0.4))
+    fleets = {}
+    for iterations in (1, 20):
+        fleet = fleets[iterations] = FleetGraph(warm_iterations=iterations)
+        fleet.apply("c3po", _update(c3po, [], epoch=11))
+        fleet.apply("r2d2", _update(_drifted(r2d2, R2D2_MAP, np.radians(0.1)), _closures(c3po, r2d2, ENDS, 11), 22))
+        assert fleet.solve() is not None
+        # r2d2 re-optimised its own graph (it bent more): every keyframe of it moves; the closures stay.
+        fleet.apply("r2d2", GraphUpdate(2, False, bent, {i: float(i) for i in bent}, [], 22))
+    full = fleets[20].solve()
+    assert full is not None and fleets[20].solve() is None  # converged in that one solve
+    warm = fleets[1]
+    solves = 0
+    while warm.solve() is not None:
+        solves += 1
+        assert solves < 10, "the warm solves never converged"
+    assert solves >= 2  # one step did not reach the optimum: the next solve went on from there
+    for agent in ("c3po", "r2d2"):
+        np.testing.assert_allclose(warm.solution[agent].stack, full.placements[agent].stack, atol=1e-5)
+
+
 def test_an_agent_that_restarts_is_dropped_and_added_again() -> None:
     c3po, r2d2 = _truth()
     fleet = FleetGraph()
