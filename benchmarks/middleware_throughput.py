@@ -727,6 +727,8 @@ def main() -> None:
         else:
             entry["rclpy"] = {"msgs_per_s": None, "reason": rclpy_reason}
         ours = entry["fleetslam"]["msgs_per_s"]
+        entry["ratio_vs_zenoh"] = _ratio(ours, entry["zenoh"]["msgs_per_s"])  # of the medians
+        entry["inline_ratio_vs_zenoh"] = _ratio(entry["fleetslam_inline"]["msgs_per_s"], entry["zenoh"]["msgs_per_s"])
         rclpy_rate = entry["rclpy"].get("msgs_per_s")
         entry["ratio_vs_rclpy"] = round(ours / rclpy_rate, 2) if rclpy_rate else None
         target_zenoh, target_rclpy = (0.8, 5.0) if kind == "image_1mb" else (0.5, 10.0)
