@@ -124,7 +124,7 @@ def topics_of(kind: str) -> list[str]:
 
 def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
     """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop."""
-    from fleetslam.msg.typesys import serialize, serialize_buffer
+    from fleetslam.msg.typesys import serialize, serialize_payload
 
     messages = [(f"/bench/{k}", *make_message(k)) for k in topics_of(kind)]
     period = 1.0 / rate if mode in ("latency", "kinect") else 0.0
@@ -142,7 +142,7 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             while time.monotonic() < deadline:
                 for publisher, type_name, msg in publishers:
                     t0 = time.time_ns()  # stamped before serialization: the latency includes it
-                    publisher.publish_raw(serialize_buffer(msg, type_name), source_timestamp_ns=t0)
+                    publisher.publish_raw(serialize_payload(msg, type_name), source_timestamp_ns=t0)
                     sent += 1
                 if period:
                     next_time += period
@@ -387,7 +387,7 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
     """
     from fleetslam.middleware import Context, Node, QoSProfile, Router
     from fleetslam.middleware.statistics import SubscriptionStatistics
-    from fleetslam.msg.typesys import deserialize, serialize_buffer
+    from fleetslam.msg.typesys import deserialize, serialize_payload
 
     type_name, msg = make_message(kind)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -407,12 +407,12 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
         while not samples and time.monotonic() < deadline:
             time.sleep(0.01)
         sample = samples[0]
-        payload = serialize_buffer(msg, type_name)
+        payload = serialize_payload(msg, type_name)
         unpack = struct.Struct("<qqB16s").unpack
 
         def serialize(n: int) -> None:
             for _ in range(n):
-                serialize_buffer(msg, type_name)
+                serialize_payload(msg, type_name)
 
         def publish_raw(n: int) -> None:
             for _ in range(n):
