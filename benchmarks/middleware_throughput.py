@@ -24,9 +24,12 @@ other round. A peer's ``msgs_per_s``, ``latency_p50_ms``, ``latency_p99_ms``, ``
 and ``targets_met`` judges the medians; ``ratio_vs_zenoh_pairs`` / ``latency_p50_vs_zenoh_pairs`` are the ratios
 within each round and ``…_range`` their [min, max], the spread. rclpy is measured once per payload (one
 throughput and one latency trial: its targets are far from the line). ``all_targets_met``: every payload's
-``targets_met`` (the fleetslam executor peer). ``load_avg_1m_start``/``…_end`` give the machine's 1-minute load
-average around the run. A publisher starts sending once its Zenoh publisher matches the subscriber (then 0.2 s),
-not after a fixed second, so that short trials stay cheap.
+``targets_met`` (the fleetslam executor peer). ``pub_threads_us_per_msg`` / ``sub_threads_us_per_msg``: each end's
+CPU µs per message (sent / delivered) by kind of thread (``executor``, ``receive``, Zenoh's ``rx``/``tx``/``net``,
+``Thread``: raw Zenoh's callback thread, ``MainThread``; Linux only), per trial and their medians.
+``load_avg_1m_start``/``…_end`` give the machine's 1-minute load average around the run. A publisher starts sending
+once its Zenoh publisher matches the subscriber (then 0.2 s), not after a fixed second, so that short trials stay
+cheap.
 
 ``kinect``: a 640×480 rgb8 Image at 30 Hz and a 640×480 16UC1 depth Image at 30 Hz, each end's CPU % of one core
 for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetslam's layers cost at each end
@@ -55,6 +58,7 @@ import json
 import math
 import os
 import platform
+import re
 import socket
 import struct
 import subprocess
@@ -137,7 +141,7 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             qos = QoSProfile(history="keep_all") if mode == "throughput" else QoSProfile(depth=100)
             publishers = [(node.create_publisher(t, topic, qos), t, msg) for topic, t, msg in messages]
             wait_matched([publisher._publisher for publisher, _, _ in publishers])
-            cpu0, wall0 = time.process_time(), time.monotonic()
+            threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
             deadline, next_time = wall0 + duration, wall0
             while time.monotonic() < deadline:
                 for publisher, type_name, msg in publishers:
@@ -148,8 +152,9 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
                     next_time += period
                     time.sleep(max(0.0, next_time - time.monotonic()))
             cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+            threads = thread_cpu_delta(threads0, thread_cpu_s())
             time.sleep(0.5)
-        print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
+        print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall, "threads_cpu_s": threads}), flush=True)
         return
     import zenoh
 
@@ -167,7 +172,7 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             for topic, t, msg in messages
         ]
         wait_matched([publisher for publisher, _ in puts])
-        cpu0, wall0 = time.process_time(), time.monotonic()
+        threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
         deadline, next_time = wall0 + duration, wall0
         while time.monotonic() < deadline:
             for publisher, payload in puts:
@@ -177,8 +182,40 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
                 next_time += period
                 time.sleep(max(0.0, next_time - time.monotonic()))
         cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+        threads = thread_cpu_delta(threads0, thread_cpu_s())
         time.sleep(0.5)
-    print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
+    print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall, "threads_cpu_s": threads}), flush=True)
+
+
+# -- per-thread CPU time (Linux) ------------------------------------------------------------------------------
+def thread_cpu_s() -> dict[int, tuple[str, float]]:
+    """This process's threads: id → (kind, CPU s); empty where /proc is not there. The kind is the thread's Python
+    name (``executor:…`` → ``executor``, ``receive:…`` → ``receive``, ``Thread-3 (…)`` → ``Thread``: raw Zenoh's
+    callback thread) or its OS name (Zenoh's ``rx-0`` → ``rx``, ``tx``, ``net``; ``python``: unnamed native threads)."""
+    names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+    tick = os.sysconf("SC_CLK_TCK")
+    threads = {}
+    try:
+        ids = os.listdir("/proc/self/task")
+    except OSError:
+        return {}
+    for tid in ids:
+        try:
+            stat = Path(f"/proc/self/task/{tid}/stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        fields = stat[stat.rindex(")") + 2 :].split()  # utime and stime are fields 14 and 15
+        name = names.get(int(tid)) or stat[stat.index("(") + 1 : stat.rindex(")")]
+        threads[int(tid)] = (re.sub(r"-\d.*$", "", name.split(":")[0]), (int(fields[11]) + int(fields[12])) / tick)
+    return threads
+
+
+def thread_cpu_delta(before: dict[int, tuple[str, float]], after: dict[int, tuple[str, float]]) -> dict[str, float]:
+    """CPU s per kind of thread between two :func:`thread_cpu_s` readings (threads started between them included)."""
+    spent: dict[str, float] = {}
+    for tid, (kind, cpu) in after.items():
+        spent[kind] = spent.get(kind, 0.0) + cpu - before.get(tid, (kind, 0.0))[1]
+    return {kind: round(cpu, 3) for kind, cpu in sorted(spent.items()) if cpu > 0}
 
 
 # -- subscriber side (this process) -----------------------------------------------------------------------------
@@ -189,6 +226,8 @@ class Receiver:
         self.lock = threading.Lock()
         self.sub_cpu_s = 0.0
         """This process's CPU time while the publisher ran (subscriber and router)."""
+        self.sub_threads_cpu_s: dict[str, float] = {}
+        """The same per kind of thread (see thread_cpu_s)."""
         self.publisher: dict[str, Any] = {}
         """The publisher's line: sent, cpu_s, wall_s of its sending loop."""
 
@@ -250,7 +289,7 @@ def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: f
             for k in kinds:
                 session.declare_subscriber(topic_key(0, f"/bench/{k}", type_name), on_sample)
             closer = session
-        cpu0 = time.process_time()
+        threads0, cpu0 = thread_cpu_s(), time.process_time()
         proc = subprocess.Popen(
             [sys.executable, __file__, "--role", "pub", "--impl", impl, "--kind", kind, "--endpoint", endpoint,
              "--mode", mode, "--duration", str(duration), "--rate", str(rate)],
@@ -259,6 +298,7 @@ def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: f
         out, _ = proc.communicate(timeout=duration + 30)
         time.sleep(0.3)
         receiver.sub_cpu_s = time.process_time() - cpu0
+        receiver.sub_threads_cpu_s = thread_cpu_delta(threads0, thread_cpu_s())
         closer.close()
     lines = out.strip().splitlines()
     receiver.publisher = json.loads(lines[-1]) if lines else {}
@@ -577,6 +617,16 @@ def summarize(throughput: Receiver, latency: Receiver) -> dict[str, Any]:
         "sub_cpu_us_per_msg": (
             round(throughput.sub_cpu_s / received * 1e6, 2) if received and throughput.publisher else None
         ),
+        "pub_threads_us_per_msg": {
+            kind: round(cpu / sent * 1e6, 2) for kind, cpu in throughput.publisher.get("threads_cpu_s", {}).items()
+        }
+        if sent
+        else {},
+        "sub_threads_us_per_msg": {
+            kind: round(cpu / received * 1e6, 2) for kind, cpu in throughput.sub_threads_cpu_s.items()
+        }
+        if received
+        else {},
     }
 
 
@@ -617,6 +667,11 @@ def measure_interleaved(kind: str, impls: tuple[str, ...], trials: int, duration
     for impl, peer_trials in runs.items():
         entry[impl] = {key: _median([t[key] for t in peer_trials]) for key in TRIAL_KEYS}
         entry[impl]["latency_samples"] = sum(t["latency_samples"] for t in peer_trials)
+        for end in ("pub", "sub"):
+            kinds = sorted({kind for t in peer_trials for kind in t[f"{end}_threads_us_per_msg"]})
+            entry[impl][f"{end}_threads_us_per_msg"] = {
+                kind: _median([t[f"{end}_threads_us_per_msg"].get(kind, 0.0) for t in peer_trials]) for kind in kinds
+            }
         entry[impl]["trials"] = peer_trials
     for impl in impls:
         if impl.startswith("fleetslam") and "zenoh" in runs:
