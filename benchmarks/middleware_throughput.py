@@ -43,8 +43,9 @@ that receives (a KEEP_LAST subscription's receive thread, batched into the execu
 thread, one hand-off per sample; ``inline``) and its executor's share, and a KEEP_LAST executor taking the samples
 from the ring itself (``sub_batched_executor_pull``: all of a sample's Python work, on one thread), against what the
 raw Zenoh peer's callback does. Thread CPU time
-does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
-and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
+depends far less than wall time on what else the machine runs, but not nothing: on a shared two-vCPU machine the
+same row moved up to 2× between runs minutes apart, so compare versions in alternating runs, against the raw Zenoh
+reference rows of the same run; the tables are in docs/middleware-api.md ("Cost per message").
 
     python benchmarks/middleware_throughput.py [--trials 5] [--duration 1.5] [--no-rclpy]
         [--payloads image_1mb,string_64b,kinect]
