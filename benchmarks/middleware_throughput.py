@@ -1,7 +1,7 @@
 """Middleware throughput and latency across two processes on loopback: fleetslam vs raw Zenoh vs rclpy (Fast DDS).
 
-Prints one JSON line. For each payload (1 MB sensor_msgs/Image, 64-byte std_msgs/String) and each peer:
-- throughput: a publisher process sends as fast as it can (reliable, blocking when congested) for a few
+Prints one JSON line. For each payload (1 MB sensor_msgs/Image, 64-byte std_msgs/String) and each peer, trials of:
+- throughput: a publisher process sends as fast as it can (reliable, blocking when congested) for ``--duration``
   seconds; the subscriber in this process counts what it receives in the steady middle of the run; both ends'
   CPU time per message (``pub_cpu_us_per_msg``, ``sub_cpu_us_per_msg``; the subscriber's includes the router,
   which runs in this process for every peer alike);
@@ -12,6 +12,24 @@ callbacks on Zenoh's thread), raw ``zenoh`` (the same CDR bytes, an 8-byte attac
 and rclpy. rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy),
 because its pip wheels re-execute the interpreter at import. Targets, fleetslam (executor) against raw Zenoh in
 the same run: 1 MB throughput ≥ 0.8× and p50 latency ≤ 1.5×; 64 B throughput ≥ 0.5×; and ≥ 5× / ≥ 10× rclpy.
+
+The comparison with raw Zenoh is made on medians of interleaved trials: a single trial per peer, one after the
+other, lets a burst of other load or a change of CPU frequency during one peer's trial decide the ratio (the same
+code's 64 B ratio moved by 0.2 from run to run that way). Each payload runs ``--trials`` rounds (default 5); a
+round runs each fleetslam and raw Zenoh peer once (a fresh publisher process and subscriber per trial, a
+throughput trial then a latency trial), in the order fleetslam, fleetslam_inline, zenoh and reversed in every
+other round. A peer's ``msgs_per_s``, ``latency_p50_ms``, ``latency_p99_ms``, ``pub_cpu_us_per_msg`` and
+``sub_cpu_us_per_msg`` are the medians over its trials (each trial's figures are in its ``trials``;
+``latency_samples`` is the total); ``ratio_vs_zenoh`` and ``latency_p50_vs_zenoh`` are ratios of those medians,
+and ``targets_met`` judges the medians; ``ratio_vs_zenoh_pairs`` / ``latency_p50_vs_zenoh_pairs`` are the ratios
+within each round and ``…_range`` their [min, max], the spread. rclpy is measured once per payload (one
+throughput and one latency trial: its targets are far from the line). ``all_targets_met``: every payload's
+``targets_met`` (the fleetslam executor peer). ``pub_threads_us_per_msg`` / ``sub_threads_us_per_msg``: each end's
+CPU µs per message (sent / delivered) by kind of thread (``executor``, ``receive``, Zenoh's ``rx``/``tx``/``net``,
+``Thread``: raw Zenoh's callback thread, ``MainThread``; Linux only), per trial and their medians.
+``load_avg_1m_start``/``…_end`` give the machine's 1-minute load average around the run. A publisher starts sending
+once its Zenoh publisher matches the subscriber (then 0.2 s), not after a fixed second, so that short trials stay
+cheap.
 
 ``kinect``: a 640×480 rgb8 Image at 30 Hz and a 640×480 16UC1 depth Image at 30 Hz, each end's CPU % of one core
 for fleetslam and raw Zenoh; ``layers_cpu_pct`` is the difference, what fleetslam's layers cost at each end
@@ -25,10 +43,12 @@ that receives (a KEEP_LAST subscription's receive thread, batched into the execu
 thread, one hand-off per sample; ``inline``) and its executor's share, and a KEEP_LAST executor taking the samples
 from the ring itself (``sub_batched_executor_pull``: all of a sample's Python work, on one thread), against what the
 raw Zenoh peer's callback does. Thread CPU time
-does not depend on what else the machine runs, so runs on a busy machine compare; the table of one run before
-and after the 64 B fast path is in docs/middleware-api.md ("Cost per message").
+depends far less than wall time on what else the machine runs, but not nothing: on a shared two-vCPU machine the
+same row moved up to 2× between runs minutes apart, so compare versions in alternating runs, against the raw Zenoh
+reference rows of the same run; the tables are in docs/middleware-api.md ("Cost per message").
 
-    python benchmarks/middleware_throughput.py [--duration 3] [--no-rclpy] [--payloads image_1mb,string_64b,kinect]
+    python benchmarks/middleware_throughput.py [--trials 5] [--duration 1.5] [--no-rclpy]
+        [--payloads image_1mb,string_64b,kinect]
     python benchmarks/middleware_throughput.py --layers 100000 [--payloads string_64b,image_1mb]
 """
 
@@ -39,6 +59,7 @@ import json
 import math
 import os
 import platform
+import re
 import socket
 import struct
 import subprocess
@@ -93,6 +114,14 @@ def make_message(kind: str) -> tuple[str, Any]:
 
 
 # -- publisher roles (run as subprocesses of this script) ------------------------------------------------------
+def wait_matched(publishers: list[Any], timeout_s: float = 5.0) -> None:
+    """Wait until each Zenoh publisher has a matching subscriber (the route through the router is up), then 0.2 s."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not all(p.matching_status.matching for p in publishers):
+        time.sleep(0.02)
+    time.sleep(0.2)
+
+
 def topics_of(kind: str) -> list[str]:
     """The payload kinds one run publishes: one, or the Kinect pair."""
     return [f"kinect/{name}" for name in KINECT] if kind == "kinect" else [kind]
@@ -100,7 +129,7 @@ def topics_of(kind: str) -> list[str]:
 
 def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
     """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop."""
-    from fleetslam.msg.typesys import serialize, serialize_buffer
+    from fleetslam.msg.typesys import serialize, serialize_payload
 
     messages = [(f"/bench/{k}", *make_message(k)) for k in topics_of(kind)]
     period = 1.0 / rate if mode in ("latency", "kinect") else 0.0
@@ -112,20 +141,21 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             node = Node("bench_pub", context=ctx, statistics_period_s=0)
             qos = QoSProfile(history="keep_all") if mode == "throughput" else QoSProfile(depth=100)
             publishers = [(node.create_publisher(t, topic, qos), t, msg) for topic, t, msg in messages]
-            time.sleep(1.0)
-            cpu0, wall0 = time.process_time(), time.monotonic()
+            wait_matched([publisher._publisher for publisher, _, _ in publishers])
+            threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
             deadline, next_time = wall0 + duration, wall0
             while time.monotonic() < deadline:
                 for publisher, type_name, msg in publishers:
                     t0 = time.time_ns()  # stamped before serialization: the latency includes it
-                    publisher.publish_raw(serialize_buffer(msg, type_name), source_timestamp_ns=t0)
+                    publisher.publish_raw(serialize_payload(msg, type_name), source_timestamp_ns=t0)
                     sent += 1
                 if period:
                     next_time += period
                     time.sleep(max(0.0, next_time - time.monotonic()))
             cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+            threads = thread_cpu_delta(threads0, thread_cpu_s())
             time.sleep(0.5)
-        print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
+        print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall, "threads_cpu_s": threads}), flush=True)
         return
     import zenoh
 
@@ -142,8 +172,8 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             (session.declare_publisher(topic_key(0, topic, t), congestion_control=congestion), serialize(msg, t))
             for topic, t, msg in messages
         ]
-        time.sleep(1.0)
-        cpu0, wall0 = time.process_time(), time.monotonic()
+        wait_matched([publisher for publisher, _ in puts])
+        threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
         deadline, next_time = wall0 + duration, wall0
         while time.monotonic() < deadline:
             for publisher, payload in puts:
@@ -153,8 +183,40 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
                 next_time += period
                 time.sleep(max(0.0, next_time - time.monotonic()))
         cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+        threads = thread_cpu_delta(threads0, thread_cpu_s())
         time.sleep(0.5)
-    print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall}), flush=True)
+    print(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall, "threads_cpu_s": threads}), flush=True)
+
+
+# -- per-thread CPU time (Linux) ------------------------------------------------------------------------------
+def thread_cpu_s() -> dict[int, tuple[str, float]]:
+    """This process's threads: id → (kind, CPU s); empty where /proc is not there. The kind is the thread's Python
+    name (``executor:…`` → ``executor``, ``receive:…`` → ``receive``, ``Thread-3 (…)`` → ``Thread``: raw Zenoh's
+    callback thread) or its OS name (Zenoh's ``rx-0`` → ``rx``, ``tx``, ``net``; ``python``: unnamed native threads)."""
+    names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+    tick = os.sysconf("SC_CLK_TCK")
+    threads = {}
+    try:
+        ids = os.listdir("/proc/self/task")
+    except OSError:
+        return {}
+    for tid in ids:
+        try:
+            stat = Path(f"/proc/self/task/{tid}/stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        fields = stat[stat.rindex(")") + 2 :].split()  # utime and stime are fields 14 and 15
+        name = names.get(int(tid)) or stat[stat.index("(") + 1 : stat.rindex(")")]
+        threads[int(tid)] = (re.sub(r"-\d.*$", "", name.split(":")[0]), (int(fields[11]) + int(fields[12])) / tick)
+    return threads
+
+
+def thread_cpu_delta(before: dict[int, tuple[str, float]], after: dict[int, tuple[str, float]]) -> dict[str, float]:
+    """CPU s per kind of thread between two :func:`thread_cpu_s` readings (threads started between them included)."""
+    spent: dict[str, float] = {}
+    for tid, (kind, cpu) in after.items():
+        spent[kind] = spent.get(kind, 0.0) + cpu - before.get(tid, (kind, 0.0))[1]
+    return {kind: round(cpu, 3) for kind, cpu in sorted(spent.items()) if cpu > 0}
 
 
 # -- subscriber side (this process) -----------------------------------------------------------------------------
@@ -165,6 +227,8 @@ class Receiver:
         self.lock = threading.Lock()
         self.sub_cpu_s = 0.0
         """This process's CPU time while the publisher ran (subscriber and router)."""
+        self.sub_threads_cpu_s: dict[str, float] = {}
+        """The same per kind of thread (see thread_cpu_s)."""
         self.publisher: dict[str, Any] = {}
         """The publisher's line: sent, cpu_s, wall_s of its sending loop."""
 
@@ -226,7 +290,7 @@ def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: f
             for k in kinds:
                 session.declare_subscriber(topic_key(0, f"/bench/{k}", type_name), on_sample)
             closer = session
-        cpu0 = time.process_time()
+        threads0, cpu0 = thread_cpu_s(), time.process_time()
         proc = subprocess.Popen(
             [sys.executable, __file__, "--role", "pub", "--impl", impl, "--kind", kind, "--endpoint", endpoint,
              "--mode", mode, "--duration", str(duration), "--rate", str(rate)],
@@ -235,6 +299,7 @@ def measure_in_process(impl: str, kind: str, mode: str, duration: float, rate: f
         out, _ = proc.communicate(timeout=duration + 30)
         time.sleep(0.3)
         receiver.sub_cpu_s = time.process_time() - cpu0
+        receiver.sub_threads_cpu_s = thread_cpu_delta(threads0, thread_cpu_s())
         closer.close()
     lines = out.strip().splitlines()
     receiver.publisher = json.loads(lines[-1]) if lines else {}
@@ -363,7 +428,7 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
     """
     from fleetslam.middleware import Context, Node, QoSProfile, Router
     from fleetslam.middleware.statistics import SubscriptionStatistics
-    from fleetslam.msg.typesys import deserialize, serialize_buffer
+    from fleetslam.msg.typesys import deserialize, serialize_payload
 
     type_name, msg = make_message(kind)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -383,12 +448,12 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
         while not samples and time.monotonic() < deadline:
             time.sleep(0.01)
         sample = samples[0]
-        payload = serialize_buffer(msg, type_name)
+        payload = serialize_payload(msg, type_name)
         unpack = struct.Struct("<qqB16s").unpack
 
         def serialize(n: int) -> None:
             for _ in range(n):
-                serialize_buffer(msg, type_name)
+                serialize_payload(msg, type_name)
 
         def publish_raw(n: int) -> None:
             for _ in range(n):
@@ -553,7 +618,79 @@ def summarize(throughput: Receiver, latency: Receiver) -> dict[str, Any]:
         "sub_cpu_us_per_msg": (
             round(throughput.sub_cpu_s / received * 1e6, 2) if received and throughput.publisher else None
         ),
+        "pub_threads_us_per_msg": {
+            kind: round(cpu / sent * 1e6, 2) for kind, cpu in throughput.publisher.get("threads_cpu_s", {}).items()
+        }
+        if sent
+        else {},
+        "sub_threads_us_per_msg": {
+            kind: round(cpu / received * 1e6, 2) for kind, cpu in throughput.sub_threads_cpu_s.items()
+        }
+        if received
+        else {},
     }
+
+
+TRIAL_KEYS = ("msgs_per_s", "latency_p50_ms", "latency_p99_ms", "pub_cpu_us_per_msg", "sub_cpu_us_per_msg")
+"""A trial's figures; a peer's headline figure of each is the median over its trials."""
+
+
+def _median(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return round(float(np.median(present)), 3) if present else None
+
+
+def _ratio(ours: float | None, theirs: float | None) -> float | None:
+    return round(ours / theirs, 3) if ours is not None and theirs else None
+
+
+def measure_interleaved(kind: str, impls: tuple[str, ...], trials: int, duration: float, rate: float) -> dict[str, Any]:
+    """``trials`` rounds of one throughput and one latency trial per peer, the peers in turn, the order reversed
+    every other round (fleetslam, …, zenoh; zenoh, …, fleetslam), so that a burst of other load or a change of CPU
+    frequency falls on all peers alike rather than deciding a ratio. Each peer's figures are the medians of its
+    trials (``trials`` lists each one); ``ratio_vs_zenoh`` is the ratio of the medians, ``ratio_vs_zenoh_pairs``
+    the ratio within each round (its spread is ``ratio_vs_zenoh_range``)."""
+    runs: dict[str, list[dict[str, Any]]] = {impl: [] for impl in impls}
+    for index in range(trials):
+        for impl in impls if index % 2 == 0 else impls[::-1]:
+            trial = summarize(
+                measure_in_process(impl, kind, "throughput", duration, rate),
+                measure_in_process(impl, kind, "latency", min(duration, 2.0), rate),
+            )
+            runs[impl].append(trial)
+            print(
+                f"[bench] {kind} trial {index + 1}/{trials} {impl}: {trial['msgs_per_s']:,.0f} msg/s, "
+                f"p50 {trial['latency_p50_ms']} ms",
+                file=sys.stderr,
+                flush=True,
+            )
+    entry: dict[str, Any] = {}
+    for impl, peer_trials in runs.items():
+        entry[impl] = {key: _median([t[key] for t in peer_trials]) for key in TRIAL_KEYS}
+        entry[impl]["latency_samples"] = sum(t["latency_samples"] for t in peer_trials)
+        for end in ("pub", "sub"):
+            kinds = sorted({kind for t in peer_trials for kind in t[f"{end}_threads_us_per_msg"]})
+            entry[impl][f"{end}_threads_us_per_msg"] = {
+                kind: _median([t[f"{end}_threads_us_per_msg"].get(kind, 0.0) for t in peer_trials]) for kind in kinds
+            }
+        entry[impl]["trials"] = peer_trials
+    for impl in impls:
+        if impl.startswith("fleetslam") and "zenoh" in runs:
+            prefix = "" if impl == "fleetslam" else "inline_"
+            pairs = zip(runs[impl], runs["zenoh"], strict=True)
+            throughput = [_ratio(ours["msgs_per_s"], zen["msgs_per_s"]) for ours, zen in pairs]
+            entry[f"{prefix}ratio_vs_zenoh_pairs"] = throughput
+            entry[f"{prefix}ratio_vs_zenoh_range"] = _range(throughput)
+            pairs = zip(runs[impl], runs["zenoh"], strict=True)
+            latency = [_ratio(ours["latency_p50_ms"], zen["latency_p50_ms"]) for ours, zen in pairs]
+            entry[impl]["latency_p50_vs_zenoh_pairs"] = latency
+            entry[impl]["latency_p50_vs_zenoh_range"] = _range(latency)
+    return entry
+
+
+def _range(values: list[float | None]) -> list[float] | None:
+    present = [v for v in values if v is not None]
+    return [min(present), max(present)] if present else None
 
 
 def measure_kinect(impls: tuple[str, ...], duration: float) -> dict[str, Any]:
@@ -599,7 +736,8 @@ def main() -> None:
     parser.add_argument("--kind", default="image_1mb")
     parser.add_argument("--endpoint", default="")
     parser.add_argument("--mode", default="throughput")
-    parser.add_argument("--duration", type=float, default=3.0)
+    parser.add_argument("--duration", type=float, default=1.5, help="seconds of one throughput trial")
+    parser.add_argument("--trials", type=int, default=5, help="trials of each peer, interleaved (rounds)")
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--no-rclpy", action="store_true", help="skip the rclpy peer")
     parser.add_argument(
@@ -628,18 +766,14 @@ def main() -> None:
         "benchmark": "middleware_throughput",
         "machine": f"{platform.machine()} {os.cpu_count()} cores",
         "duration_s": args.duration,
+        "trials": args.trials,
+        "load_avg_1m_start": round(os.getloadavg()[0], 2),
     }
     wanted = [k.strip() for k in args.payloads.split(",") if k.strip()]
     rclpy_python, rclpy_reason = (None, "skipped (--no-rclpy)") if args.no_rclpy else ensure_rclpy_venv()
     for kind in (k for k in PAYLOADS if k in wanted):
         rate = 50.0 if kind == "image_1mb" else 200.0
-        entry: dict[str, Any] = {}
-        for impl in IMPLS:
-            print(f"[bench] {kind} {impl} ...", file=sys.stderr, flush=True)
-            entry[impl] = summarize(
-                measure_in_process(impl, kind, "throughput", args.duration, rate),
-                measure_in_process(impl, kind, "latency", min(args.duration, 2.0), rate),
-            )
+        entry = measure_interleaved(kind, IMPLS, args.trials, args.duration, rate)
         if rclpy_python is not None:
             print(f"[bench] {kind} rclpy ...", file=sys.stderr, flush=True)
             entry["rclpy"] = summarize(
@@ -649,14 +783,8 @@ def main() -> None:
         else:
             entry["rclpy"] = {"msgs_per_s": None, "reason": rclpy_reason}
         ours = entry["fleetslam"]["msgs_per_s"]
-        entry["ratio_vs_zenoh"] = (
-            round(ours / entry["zenoh"]["msgs_per_s"], 3) if entry["zenoh"]["msgs_per_s"] else None
-        )
-        entry["inline_ratio_vs_zenoh"] = (
-            round(entry["fleetslam_inline"]["msgs_per_s"] / entry["zenoh"]["msgs_per_s"], 3)
-            if entry["zenoh"]["msgs_per_s"]
-            else None
-        )
+        entry["ratio_vs_zenoh"] = _ratio(ours, entry["zenoh"]["msgs_per_s"])  # of the medians
+        entry["inline_ratio_vs_zenoh"] = _ratio(entry["fleetslam_inline"]["msgs_per_s"], entry["zenoh"]["msgs_per_s"])
         rclpy_rate = entry["rclpy"].get("msgs_per_s")
         entry["ratio_vs_rclpy"] = round(ours / rclpy_rate, 2) if rclpy_rate else None
         target_zenoh, target_rclpy = (0.8, 5.0) if kind == "image_1mb" else (0.5, 10.0)
@@ -666,6 +794,8 @@ def main() -> None:
         results[kind] = entry
     if "kinect" in wanted:
         results["kinect"] = measure_kinect(IMPLS, args.duration)
+    results["all_targets_met"] = all(all(results[k]["targets_met"].values()) for k in PAYLOADS if k in results)
+    results["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
     print(json.dumps(results))
 
 

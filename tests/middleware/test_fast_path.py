@@ -12,7 +12,7 @@ import zenoh
 
 from fleetslam.errors import MessageError
 from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
-from fleetslam.msg.typesys import deserialize, get_type, get_typestore, serialize, serialize_buffer
+from fleetslam.msg.typesys import deserialize, get_type, get_typestore, serialize, serialize_buffer, serialize_payload
 
 from ..support import wait_until
 
@@ -35,6 +35,7 @@ def test_string_fast_path_writes_and_reads_what_rosbags_does(text: str) -> None:
     reference = bytes(store.serialize_cdr(msg, STRING))
     buffer = serialize_buffer(msg, STRING)
     assert isinstance(buffer, bytearray) and bytes(buffer) == reference
+    assert serialize_payload(msg, STRING) == serialize(msg, STRING) == reference  # what a publisher sends
     assert deserialize(reference, STRING) == store.deserialize_cdr(reference, STRING) == msg
     for padding in range(6):  # CDR allows up to 3 bytes of padding after the last field, no more
         padded = reference + b"\0" * padding

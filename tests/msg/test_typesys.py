@@ -486,6 +486,15 @@ def test_serialize_buffer_is_serialize_without_the_copy() -> None:
     assert ts.serialize_buffer(msg, "std_msgs/msg/String") is not buffer  # a new buffer each time, the caller's own
 
 
+def test_serialize_payload_is_serialize_in_the_object_it_was_written_into() -> None:
+    string = ts.get_type("std_msgs/msg/String")(data="hi")
+    assert type(ts.serialize_payload(string, "std_msgs/msg/String")) is bytes  # built in one piece
+    array = ts.message_from_dict("std_msgs/msg/UInt8MultiArray", {"data": list(range(8))})
+    payload = ts.serialize_payload(array, "std_msgs/msg/UInt8MultiArray")
+    assert type(payload) is bytearray and bytes(payload) == ts.serialize(array, "std_msgs/msg/UInt8MultiArray")
+    assert ts.serialize_payload(array, "std_msgs/msg/UInt8MultiArray") is not payload
+
+
 def test_keyframe_arrays_are_views_too() -> None:
     msg = ts.message_from_dict(
         "fleetslam_msgs/msg/Keyframe",

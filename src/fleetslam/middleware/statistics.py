@@ -22,9 +22,11 @@ publishers however many GIDs were forged.
 from __future__ import annotations
 
 import math
+import struct
 import threading
 from array import array
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,6 +109,7 @@ class WindowReport:
     age_max_ns: float
 
 
+_pack = struct.pack
 _NO_GID = b"\x00" * 16
 """Samples of no readable GID, and the publishers evicted from a full table ("other publishers")."""
 DEFAULT_MAX_PUBLISHERS = 32
@@ -297,25 +300,31 @@ class SubscriptionStatistics:
                 self._fold(state)
 
     def on_samples(
-        self, gid: bytes, sequence_numbers: list[int], sources_ns: list[int], receives_ns: list[int], size: int
+        self,
+        gid: bytes,
+        sequence_numbers: Sequence[int],
+        sources_ns: Sequence[int],
+        receives_ns: Sequence[int],
+        size: int,
     ) -> None:
         """Record a run of delivered samples of one publisher, in arrival order (``size``: their bytes in all);
         the same as :meth:`on_sample` for each of them, for one lock and one lookup."""
+        # Packed in one call per column and appended as bytes: array.extend converts int by int (0.1 µs more per
+        # sample for the three columns).
+        layout = f"{len(receives_ns)}q"  # native int64s, the arrays' own layout
+        try:
+            columns = (_pack(layout, *sequence_numbers), _pack(layout, *sources_ns), _pack(layout, *receives_ns))
+        except struct.error:  # beyond int64 (forged): the run goes in sample by sample, exactly
+            columns = None
         with self._lock:
             state = self._last_state if gid == self._last_gid else self._state(gid)
-            receives = state.receives
-            count = len(receives)
-            try:
-                state.sequences.extend(sequence_numbers)
-                state.sources.extend(sources_ns)
-                receives.extend(receives_ns)
-            except OverflowError:  # beyond int64 (forged): the run goes in sample by sample, exactly
-                del state.sequences[count:], state.sources[count:], receives[count:]
-                exact = True
-            else:
-                exact = False
+            exact = columns is None
+            if columns is not None:
+                state.sequences.frombytes(columns[0])
+                state.sources.frombytes(columns[1])
+                state.receives.frombytes(columns[2])
                 state.window.traffic_bytes += size
-                if len(receives) >= FOLD_BATCH:
+                if len(state.receives) >= FOLD_BATCH:
                     self._fold(state)
         if exact:
             for sequence_number, source_ns, receive_ns in zip(sequence_numbers, sources_ns, receives_ns, strict=True):

@@ -457,16 +457,12 @@ class Subscription(Entity):
 
     def _count(self, checked: list[tuple[zenoh.ZBytes, MessageInfo]]) -> None:
         """Count the samples of one pull in the statistics, a run of one publisher's in one call."""
-        gid = checked[0][1].publisher_gid
         infos = [info for _, info in checked]
-        if all(info[3] == gid for info in infos):  # one publisher (the usual case)
-            self.statistics.on_samples(
-                gid,
-                [info[2] for info in infos],
-                [info[0] for info in infos],
-                [info[1] for info in infos],
-                sum(info[4] for info in infos),
-            )
+        # The infos' fields as columns, in C (per-field list comprehensions cost 0.05 µs more per sample).
+        stamps, receives, sequences, gids, sizes, _, _ = zip(*infos, strict=True)
+        gid = gids[0]
+        if gids.count(gid) == len(gids):  # one publisher (the usual case)
+            self.statistics.on_samples(gid, sequences, stamps, receives, sum(sizes))
             return
         for stamp, received, seq, publisher_gid, size, *_ in infos:
             self._on_stats(publisher_gid, seq, stamp, received, size)
