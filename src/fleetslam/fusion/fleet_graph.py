@@ -31,10 +31,10 @@ they join held where the last solve placed them; a closure waiting beyond the bu
 Levenberg–Marquardt over every placed agent with the closures GNC kept, warm-started from the previous solve's result
 (new keyframes start where their predecessor's correction, or their agent's placement, puts them): one step of it,
 as iSAM2 takes one per update, and while that step still lowered the error the next solve goes on from there (so a
-graph that stopped changing still converges); a solve that places an agent iterates to convergence. So
-one solve's work is bounded however many agents change at once (in ``benchmarks/fleet_backend.py`` every agent's
-closures arrive together, and one GNC over all 32 agents, 1700 variables, took 0.7 s, every agent's new keyframes
-waiting meanwhile). The caller bounds the rate.
+graph that stopped changing still converges); only the first solve (nothing to start from) iterates to
+convergence. So one solve's work is bounded however many agents change at once (in ``benchmarks/fleet_backend.py``
+every agent's closures arrive together, and one GNC over all 32 agents, 1700 variables, took 0.7 s, every agent's new
+keyframes waiting meanwhile). The caller bounds the rate.
 
 What a solve costs is the linear solve of that step (60–120 ms at 32 agents, 2700 variables) and Python around it:
 every agent's keyframes are kept as arrays per version of its graph, its odometry factors and each closure's factor
@@ -240,14 +240,16 @@ class FleetGraph:
     """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
     max_iterations: int = 20
     warm_iterations: int = 1
-    """Levenberg–Marquardt iterations of a solve that starts from the previous one's result with no agent newly
-    placed (iSAM2 likewise takes one step per update): from there one step reaches the optimum to a few parts in
-    10⁶ of the error (32 agents of ``benchmarks/fleet_backend.py``: 2700 variables, 215.107 → 211.247 after one step
-    and after two), and each step of a graph that large costs 60–120 ms of CPU. A step that still lowered the error
-    by more than ``relative_error_tol`` is followed by another solve, so a graph that stopped changing still
-    converges."""
+    """Levenberg–Marquardt iterations of a solve that starts from the previous one's result (iSAM2 likewise takes one
+    step per update; an agent newly placed starts where GNC's judging solve put it): from there one step reaches the
+    optimum to a few parts in 10⁶ of the error (32 agents of ``benchmarks/fleet_backend.py``: 2700 variables,
+    215.107 → 211.247 after one step and after two), and each step of a graph that large costs 60–120 ms of CPU. A
+    step that still lowered the error by more than ``relative_error_tol`` and ``absolute_error_tol`` is followed by
+    another solve, so a graph that stopped changing still converges."""
     relative_error_tol: float = 1e-5
     """Relative decrease of the error under which a solve counts as converged (GTSAM's default)."""
+    absolute_error_tol: float = 1e-5
+    """Decrease of the error under which a solve counts as converged, whatever the error (GTSAM's default)."""
     """Levenberg–Marquardt iterations per solve (each GNC step too)."""
     gnc_budget: int = 200
     """Most variables of one solve's GNC: closures waiting for a verdict are judged a group of agents at a time
@@ -450,11 +452,12 @@ class FleetGraph:
         for key in np.setdiff1d(warm, np.concatenate(chain_keys)).tolist():  # no longer a variable
             values.erase(key)
         self._add_closures(graph, used)
-        iterations = self.max_iterations if self._warm is None or placed - set(self._solution) else self.warm_iterations
+        iterations = self.max_iterations if self._warm is None else self.warm_iterations
         optimizer = g.LevenbergMarquardtOptimizer(graph, values, self._lm_params(iterations))
         start_error = optimizer.error()
         result = optimizer.optimize()
-        converging = start_error - optimizer.error() > self.relative_error_tol * start_error
+        decrease = start_error - optimizer.error()
+        converging = decrease > self.relative_error_tol * start_error and decrease > self.absolute_error_tol
         if iterations < self.max_iterations and converging:
             self.changed = True  # the next solve goes on from here
         self._warm = result
