@@ -288,15 +288,16 @@ def _serialize_spliced(
     shell.__dict__.update(state)
     shell.__dict__[name] = empty
     try:
-        buffer = store.serialize_cdr(shell, type_name).obj  # the bytearray rosbags filled
+        buffer: Any = store.serialize_cdr(shell, type_name).obj  # the bytearray rosbags filled
     except Exception as err:  # rosbags raises several kinds for wrong field values
         raise MessageError(f"cannot serialize {type(msg).__name__} as {type_name}: {err}") from err
     cut = len(buffer) - tail
     _pack_length(buffer, cut - 4, data.size)
+    array: Any = data  # NumPy's stubs do not make an array a Buffer for bytes.join
     if not tail:
-        return b"".join((buffer, data))
+        return b"".join((buffer, array))
     view = memoryview(buffer)
-    return b"".join((view[:cut], data, view[cut:]))
+    return b"".join((view[:cut], array, view[cut:]))
 
 
 def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
