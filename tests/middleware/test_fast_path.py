@@ -1,5 +1,6 @@
-"""The 64-byte fast path: std_msgs/String's own CDR coder gives rosbags' bytes, messages and errors, and publishers
-number their samples without a lock (one atomic counter) when several threads publish at once."""
+"""The fast paths: std_msgs/String's own CDR coder gives rosbags' bytes, messages and errors; a large trailing byte
+array (Image, PointCloud2) joined to the rest of its CDR gives rosbags' bytes; and publishers number their samples
+without a lock (one atomic counter) when several threads publish at once."""
 
 import random
 import struct
@@ -7,12 +8,24 @@ import threading
 import time
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 import zenoh
 
 from fleetslam.errors import MessageError
 from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
-from fleetslam.msg.typesys import deserialize, get_type, get_typestore, serialize, serialize_buffer, serialize_payload
+from fleetslam.msg.typesys import (
+    SPLICE_MIN_BYTES,
+    deserialize,
+    get_type,
+    get_typestore,
+    header,
+    message_from_dict,
+    message_to_dict,
+    serialize,
+    serialize_buffer,
+    serialize_payload,
+)
 
 from ..support import wait_until
 
@@ -66,6 +79,68 @@ def test_string_fast_path_rejects_what_the_general_decoder_rejects() -> None:
 def test_string_fast_path_keeps_rosbags_errors_for_a_wrong_field() -> None:
     with pytest.raises(MessageError, match="cannot serialize"):
         serialize_buffer(get_type(STRING)(data=7), STRING)
+
+
+SPLICED = [  # types whose trailing byte array is joined on, with fields of each kind before (and after) it
+    ("sensor_msgs/msg/Image", {"encoding": "mono8", "height": 3, "width": 5, "step": 5, "is_bigendian": 1}),
+    ("sensor_msgs/msg/CompressedImage", {"format": "jpeg"}),
+    ("sensor_msgs/msg/PointCloud2", {"height": 1, "is_bigendian": True, "point_step": 3, "is_dense": True}),
+    ("std_msgs/msg/UInt8MultiArray", {"layout": {"dim": [{"label": "x", "size": 1, "stride": 1}], "data_offset": 3}}),
+    ("std_msgs/msg/Int8MultiArray", {"layout": {"data_offset": 1}}),
+]
+
+
+@pytest.mark.parametrize(("type_name", "fields"), SPLICED)
+@pytest.mark.parametrize("extra", [0, 1, 2, 3, 5, 7])  # every remainder of the array's length modulo 8
+def test_large_byte_array_is_joined_into_the_bytes_rosbags_writes(type_name: str, fields: dict, extra: int) -> None:
+    store = get_typestore()
+    frame = "f" * (extra + 1)  # strings of each length before the array: every alignment of its length field
+    rng = np.random.default_rng(extra)
+    dtype = np.int8 if type_name.startswith("std_msgs/msg/Int8") else np.uint8
+    data = rng.integers(-128 if dtype is np.int8 else 0, 128, SPLICE_MIN_BYTES + extra).astype(dtype)
+    msg = message_from_dict(type_name, {**fields, "data": data})
+    data = msg.data
+    if hasattr(msg, "header"):
+        msg.header = header(frame, 1_700_000_000_123_456_789)
+    reference = bytes(store.serialize_cdr(msg, type_name))
+    payload = serialize_payload(msg, type_name)
+    assert type(payload) is bytes and payload == reference == serialize(msg, type_name)
+    assert serialize_buffer(msg, type_name) == reference
+    assert msg.data is data  # the message is left as it was
+    decoded = deserialize(payload, type_name)
+    assert np.array_equal(decoded.data, data)
+    assert message_to_dict(decoded) == message_to_dict(store.deserialize_cdr(reference, type_name))
+
+
+def test_byte_arrays_not_joined_are_serialized_as_before() -> None:
+    image = "sensor_msgs/msg/Image"
+    msg = message_from_dict(image, {"encoding": "mono8", "data": np.arange(SPLICE_MIN_BYTES - 1, dtype=np.uint8)})
+    assert type(serialize_payload(msg, image)) is bytearray  # small: the serializer's own buffer
+    for data in (  # large, but not a contiguous one-dimensional array of the field's dtype
+        np.zeros((256, 512), np.uint8),
+        np.zeros(2 * SPLICE_MIN_BYTES, np.uint8)[::2],
+        np.zeros(SPLICE_MIN_BYTES, np.int8),
+    ):
+        msg.data = data
+        try:
+            expected: object = bytes(get_typestore().serialize_cdr(msg, image))
+        except Exception as err:  # whatever rosbags raises, serialize_payload reports
+            expected = type(err)
+        try:
+            got: object = serialize_payload(msg, image)
+            assert type(got) is bytearray
+            got = bytes(got)
+        except MessageError as err:
+            got = type(err.__cause__)
+        assert got == expected
+
+
+def test_large_byte_array_keeps_rosbags_errors_for_a_wrong_field() -> None:
+    image = "sensor_msgs/msg/Image"
+    msg = message_from_dict(image, {"data": np.zeros(SPLICE_MIN_BYTES, np.uint8)})
+    msg.width = -1
+    with pytest.raises(MessageError, match="cannot serialize"):
+        serialize_payload(msg, image)
 
 
 def test_publishers_number_samples_uniquely_from_many_threads(
