@@ -116,3 +116,29 @@ def test_the_odometry_merges_a_landmark_made_twice_everywhere_it_is_referenced(t
     # The next frame matches the originals the twins had hidden.
     later = vo.track(*render(BASE @ pose_from_xyz_rpy(0.035, 0.0, 0.0, 0.0, 0.0, 0.0), INTRINSICS, textures), 0.2)
     assert later.inliers > result.inliers
+
+
+def test_landmarks_are_fused_only_where_no_wheel_prior_ties_the_window(textures: list[np.ndarray]) -> None:
+    """A camera without wheels fuses; with the wheels tying each keyframe to the one before, the track is the one
+    without fusion, to the bit (as ``window_fixed_keyframes``)."""
+    motions = [pose_from_xyz_rpy(0.03 * k, 0.0, 0.01 * k, 0.0, np.radians(1.0 * k), 0.0) for k in range(6)]
+    frames = [render(BASE @ motion, INTRINSICS, textures) for motion in motions]
+
+    def track(fuse: bool, wheels: bool) -> tuple[VisualOdometry, list[np.ndarray]]:
+        vo = VisualOdometry(OdometryConfig(fuse_landmarks=fuse, window_keyframes=3, keyframe_translation=0.05),
+                            INTRINSICS)  # fmt: skip
+        poses = []
+        for k, ((rgb, depth), motion) in enumerate(zip(frames, motions, strict=True)):
+            poses.append(vo.track(rgb, depth, 0.1 * k, prior=motion if wheels else None).pose)
+            poses.append(adjusted if (adjusted := vo.local_mapping()) is not None else poses[-1])
+        return vo, poses
+
+    with_wheels, with_wheels_poses = track(True, wheels=True)
+    assert with_wheels.fused_landmarks == 0
+    for a, b in zip(with_wheels_poses, track(False, wheels=True)[1], strict=True):
+        np.testing.assert_array_equal(a, b)
+    hand_held, hand_held_poses = track(True, wheels=False)
+    assert hand_held.fused_landmarks > 0
+    # Fused, the track is as accurate as the pair test's.
+    error = np.linalg.inv(motions[-1]) @ hand_held_poses[-1]
+    assert np.linalg.norm(error[:3, 3]) < 0.010

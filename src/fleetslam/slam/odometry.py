@@ -598,6 +598,8 @@ class VisualOdometry:
         pending, self._fusion_pending = self._fusion_pending, None
         if pending is None or not self.window or pending.keyframe is not self.window[-1]:
             return
+        if len(self._wheel_priors(list(self.window))) == len(self.window) - 1:
+            return  # the wheels tie the window: see OdometryConfig.fuse_landmarks
         keyframe, feats, local_map = pending.keyframe, pending.features, self.local_map
         if local_map.descriptors is None or len(local_map) == 0:
             return
