@@ -85,6 +85,12 @@ def fuse_into_view(
     k = camera_matrix
     uv = np.stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2], k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]], axis=1)
     radius = float(np.sqrt(CHI2_PIXEL) * pixel_std * max(float(view.scales.max()), 1.0))
+    # Only those that land among the keypoints (most of the local map lies outside the view).
+    low, high = view.keypoints.min(axis=0) - radius, view.keypoints.max(axis=0) + radius
+    inside = np.all((uv >= low) & (uv <= high), axis=1)
+    candidates, cam, uv = candidates[inside], cam[inside], uv[inside]
+    if len(candidates) == 0:
+        return empty
     pairs = cKDTree(np.asarray(view.keypoints, np.float64)).sparse_distance_matrix(
         cKDTree(uv), radius, output_type="ndarray"
     )

@@ -8,7 +8,8 @@ prediction as a prior whose width follows the frame interval (RANSAC PnP only wh
 frame becomes a keyframe when it tracks too few of the map's landmarks, or moved or turned far enough from the last
 keyframe (distances, not frame counts: the decision does not depend on the camera rate). A keyframe adds its new
 landmarks and joins a window of recent keyframes; after its pose is out, :meth:`VisualOdometry.local_mapping`
-bundle-adjusts the window (poses and landmarks, RGB-D residuals; a ground robot's poses on its floor plane, tied by
+merges the landmarks it made again (:mod:`~fleetslam.slam.landmark_fusion`; without wheels) and bundle-adjusts the
+window (poses and landmarks, RGB-D residuals; a ground robot's poses on its floor plane, tied by
 the wheels' relative motion), so that one frame's error does not become the next keyframe's map.
 
 When the features fail (a blank wall, motion blur, a dropped stretch of frames) with wheel odometry available, the
