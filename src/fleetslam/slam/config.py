@@ -114,6 +114,23 @@ class OdometryConfig(ConfigModel):
     5.34/5.27/2.99/4.13 and 2.96/2.35/2.13/1.82 cm; with ``triangulation_keyframes=6`` 2.23/2.92/2.33/4.04 and
     2.70/3.17/3.33/2.26 cm. Alone, the figure eight's odometry drifts less (7.5/9.6/6.6/6.5 → 4.6/3.1/3.4/3.2 cm)
     but the survey's 5 and 10 Hz cells got worse; hence not the default."""
+    fuse_landmarks: bool = True
+    """After each keyframe, before the window's adjustment, landmarks made twice are merged (ORB-SLAM's local
+    mapping, ``SearchInNeighbors``; :mod:`~fleetslam.slam.landmark_fusion`): the local map's landmarks are projected
+    into the new keyframe, and where one falls on a keypoint that observes another landmark, within the χ² gate of
+    reprojection and depth and ``fuse_descriptor_distance`` of its descriptor, the two become the one with more
+    observations, everywhere they are referenced (the local map, the window and its fixed keyframes); one that falls
+    on a keypoint without a landmark gains that observation. Binary descriptors only. Used only where no wheel prior
+    ties the window (as ``window_fixed_keyframes``), so a ground robot's results do not change, to the bit: with the
+    wheels it moved 9 of the procedural hall's 12 ground cells at 320×240 by +0.02 to +0.79 cm (all within 2 cm).
+    Measured (benchmarks/slam_matrix.py), hand-held, procedural hall, 320×240, ATE at 5/10/15/30 Hz: survey
+    3.48/3.17/7.42/4.50 → 2.74/3.52/4.72/2.88 cm, figure eight 3.20/2.13/2.99/5.50 → 1.95/1.97/2.15/4.92 cm,
+    loop_revisit 2.75/1.84/4.54/2.44 → 1.44/1.44/2.33/1.52 cm (9 of 12 cells within 3 cm instead of 5); more in
+    docs/slam.md ("Tried on those cells"). Projecting the new keyframe's landmarks into the window's other keyframes
+    as well (ORB-SLAM fuses both ways) made those cells worse (up to 10.5 cm)."""
+    fuse_descriptor_distance: float = Field(default=50.0, gt=0.0)
+    """Largest Hamming distance (bits) between a landmark's descriptor and the keypoint it is fused with (ORB-SLAM's
+    ``TH_LOW``)."""
     max_prediction_error: float = Field(default=0.1, gt=0.0)
     """A pose farther than this from the motion prediction (metres per 1/30 s of frame interval) is a failure,
     not motion: a ground robot cannot jump that far between frames."""

@@ -8,7 +8,8 @@ prediction as a prior whose width follows the frame interval (RANSAC PnP only wh
 frame becomes a keyframe when it tracks too few of the map's landmarks, or moved or turned far enough from the last
 keyframe (distances, not frame counts: the decision does not depend on the camera rate). A keyframe adds its new
 landmarks and joins a window of recent keyframes; after its pose is out, :meth:`VisualOdometry.local_mapping`
-bundle-adjusts the window (poses and landmarks, RGB-D residuals; a ground robot's poses on its floor plane, tied by
+merges the landmarks it made again (:mod:`~fleetslam.slam.landmark_fusion`; without wheels) and bundle-adjusts the
+window (poses and landmarks, RGB-D residuals; a ground robot's poses on its floor plane, tied by
 the wheels' relative motion), so that one frame's error does not become the next keyframe's map.
 
 When the features fail (a blank wall, motion blur, a dropped stretch of frames) with wheel odometry available, the
@@ -34,6 +35,7 @@ from fleetslam.geometry import invert, orthonormalized, planar_camera_pose, rota
 from fleetslam.slam.config import FeatureConfig, OdometryConfig
 from fleetslam.slam.features import FeatureExtractor, Features, import_cv2
 from fleetslam.slam.frontend import OdometryResult
+from fleetslam.slam.landmark_fusion import View, fuse_into_view, merge_plan
 from fleetslam.slam.local_ba import BundleProblem, PosePrior, bundle_adjust
 from fleetslam.slam.matching import match_by_projection, match_ratio
 from fleetslam.slam.photometric_alignment import (
@@ -142,6 +144,17 @@ class LocalMap:
         self.points, self.descriptors = self.points[rows], self.descriptors[rows]
         self.ids, self.last_seen = self.ids[rows], self.last_seen[rows]
 
+    def merge(self, dropped: NDArray[np.int64], kept: NDArray[np.int64]) -> None:
+        """Drop the landmarks ``dropped``, each a duplicate of the one in ``kept`` (which keeps its position and
+        descriptor, and the later of the two frames last tracked)."""
+        rows, found = self.rows(dropped)
+        kept_rows, kept_found = self.rows(kept)
+        both = found & kept_found
+        np.maximum.at(self.last_seen, kept_rows[both], self.last_seen[rows[both]])
+        keep = np.ones(len(self), bool)
+        keep[rows[found]] = False
+        self._keep(np.flatnonzero(keep))
+
     def rows(self, ids: NDArray[np.int64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
         """Rows of the given landmark ids, and which of them are still in the map."""
         position = np.searchsorted(self.ids, ids)
@@ -235,6 +248,10 @@ class VisualOdometry:
         """Keypoints without depth of the window's keyframes, oldest first, waiting to be triangulated."""
         self._lost_frames = 0
         self._adjustment_pending = False
+        self._fusion_pending: _FusionPending | None = None
+        """The newest keyframe's keypoints, for the landmark fusion that precedes the window's adjustment."""
+        self.fused_landmarks = 0
+        """Landmarks merged into another since the start (``fuse_landmarks``)."""
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
         self._photometric_level = pyramid_level(intrinsics.width)
         self._photometric_block = (
@@ -547,6 +564,9 @@ class VisualOdometry:
             self.window[-1], feats.keypoints[leftover].astype(np.float64), feats.descriptors[leftover],
             feats.scales[leftover].astype(np.float64),
         ))  # fmt: skip
+        if self.config.fuse_landmarks and self.extractor.binary:
+            depths = np.where(frame.valid, frame.points[:, 2], 0.0)
+            self._fusion_pending = _FusionPending(self.window[-1], feats, depths, observed)
         # The window's adjustment is local mapping: it runs after the frame's pose is out (local_mapping()).
         self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
@@ -561,12 +581,68 @@ class VisualOdometry:
         if not self._adjustment_pending:
             return None
         self._adjustment_pending = False
+        self._fuse_landmarks()
         adjusted = orthonormalized(self.constrain(self._adjust_window()))
         # The frame that became the keyframe is still the newest: its pose and the velocity follow the adjustment.
         self._velocity = self._velocity @ invert(self.pose) @ adjusted
         self.pose = adjusted
         self._keyframe_pose = adjusted.copy()
         return adjusted.copy()
+
+    def _fuse_landmarks(self) -> None:
+        """Merge the landmarks made twice around the newest keyframe (``fuse_landmarks``; see
+        :mod:`~fleetslam.slam.landmark_fusion`): the local map's landmarks are projected into the new keyframe, and
+        where one falls on a keypoint that observes another landmark, the two become the one with more observations
+        in the window, in the local map and in every keyframe of the window and its fixed keyframes (ORB-SLAM also
+        projects the new keyframe's landmarks into its neighbours; measured here, that direction made the hand-held
+        cells worse: docs/slam.md)."""
+        pending, self._fusion_pending = self._fusion_pending, None
+        if pending is None or not self.window or pending.keyframe is not self.window[-1]:
+            return
+        if len(self._wheel_priors(list(self.window))) == len(self.window) - 1:
+            return  # the wheels tie the window: see OdometryConfig.fuse_landmarks
+        keyframe, feats, local_map = pending.keyframe, pending.features, self.local_map
+        if local_map.descriptors is None or len(local_map) == 0:
+            return
+        options: dict[str, float] = {
+            "max_distance": self.config.fuse_descriptor_distance,
+            "pixel_std": self.config.pixel_std,
+            "depth_noise": self.config.depth_noise,
+            "min_depth": self.config.min_depth,
+        }
+        landmarks = np.full(len(feats), -1, np.int64)
+        landmarks[pending.observed] = keyframe.landmarks[: len(pending.observed)]
+        view = View(keyframe.pose, feats.keypoints.astype(np.float64), feats.descriptors,
+                    feats.scales.astype(np.float64), pending.depths, landmarks)  # fmt: skip
+        forward = fuse_into_view(
+            view, local_map.ids, local_map.points, local_map.descriptors, self._K, **options
+        )  # fmt: skip
+        if len(forward.observed_index):
+            # Keypoints of the new keyframe that had no landmark observe the one projected onto them.
+            index = forward.observed_index
+            keyframe.landmarks = np.concatenate([keyframe.landmarks, forward.observed_ids])
+            keyframe.pixels = np.vstack([keyframe.pixels, feats.keypoints[index].astype(np.float64)])
+            keyframe.depths = np.concatenate([keyframe.depths, pending.depths[index]])
+            keyframe.scales = np.concatenate([keyframe.scales, feats.scales[index].astype(np.float64)])
+        if not len(forward.duplicates):
+            return
+        keyframes = list(self._retired) + list(self.window)
+        seen, counts = np.unique(np.concatenate([kf.landmarks for kf in keyframes]), return_counts=True)
+        dropped, kept = merge_plan(forward.duplicates, dict(zip(seen.tolist(), counts.tolist(), strict=True)))
+        for kf in keyframes:
+            hit = np.isin(kf.landmarks, dropped)
+            if not hit.any():
+                continue
+            kf.landmarks = kf.landmarks.copy()
+            kf.landmarks[hit] = kept[np.searchsorted(dropped, kf.landmarks[hit])]
+            # A keyframe that observed both keeps its first observation of the point.
+            _, first = np.unique(kf.landmarks, return_index=True)
+            if len(first) < len(kf.landmarks):
+                rows = np.sort(first)
+                kf.landmarks, kf.pixels = kf.landmarks[rows], kf.pixels[rows]
+                kf.depths, kf.scales = kf.depths[rows], kf.scales[rows]
+        local_map.merge(dropped, kept)
+        self.fused_landmarks += len(dropped)
 
     def _keyframe_surface(self, frame: _Frame) -> KeyframeSurface | None:
         if not self._surface_stride:
@@ -885,6 +961,18 @@ class _Candidates:
         keep = np.ones(len(self.pixels), bool)
         keep[rows] = False
         self.pixels, self.descriptors, self.scales = self.pixels[keep], self.descriptors[keep], self.scales[keep]
+
+
+@dataclass
+class _FusionPending:
+    """The newest keyframe's features, waiting for the landmark fusion (``fuse_landmarks``)."""
+
+    keyframe: _WindowKeyframe
+    features: Features
+    depths: NDArray[np.float64]
+    """Measured depth of every keypoint, 0 where none."""
+    observed: NDArray[np.intp]
+    """The keypoints behind the keyframe's observations, in their order."""
 
 
 @dataclass
