@@ -217,12 +217,18 @@ def serialize_payload(msg: object, type_name: str) -> bytes | bytearray:
         spliced = _serialize_spliced(msg, type_name, store, plan)
         if spliced is not None:
             return spliced
-    try:
-        view = store.serialize_cdr(msg, type_name)
-    except Exception as err:  # rosbags raises several kinds for wrong field values
-        raise MessageError(f"cannot serialize {type(msg).__name__} as {type_name}: {err}") from err
+    view = _rosbags_cdr(store, msg, type_name, msg)
     buffer = view.obj  # rosbags returns a read-only view of the bytearray it filled
     return buffer if isinstance(buffer, bytearray) and len(buffer) == len(view) else bytearray(view)
+
+
+def _rosbags_cdr(store: Typestore, msg: object, type_name: str, original: object) -> memoryview:
+    """rosbags' CDR of ``msg``; its errors (several kinds, for wrong field values) as :class:`MessageError` naming
+    ``original``'s class (the message the caller was given)."""
+    try:
+        return store.serialize_cdr(msg, type_name)
+    except Exception as err:
+        raise MessageError(f"cannot serialize {type(original).__name__} as {type_name}: {err}") from err
 
 
 SPLICE_MIN_BYTES = 1 << 16
@@ -274,7 +280,9 @@ def _serialize_spliced(
     name, tail, dtype, empty, cls = plan
     if type(msg) is not cls:
         return None
-    state = msg.__dict__
+    state = getattr(msg, "__dict__", None)  # rosbags' classes are plain dataclasses; another class goes the usual way
+    if state is None:
+        return None
     data = state.get(name)
     if (
         type(data) is not np.ndarray
@@ -287,10 +295,7 @@ def _serialize_spliced(
     shell = object.__new__(cls)
     shell.__dict__.update(state)
     shell.__dict__[name] = empty
-    try:
-        buffer: Any = store.serialize_cdr(shell, type_name).obj  # the bytearray rosbags filled
-    except Exception as err:  # rosbags raises several kinds for wrong field values
-        raise MessageError(f"cannot serialize {type(msg).__name__} as {type_name}: {err}") from err
+    buffer: Any = _rosbags_cdr(store, shell, type_name, msg).obj  # the bytearray rosbags filled
     cut = len(buffer) - tail
     _pack_length(buffer, cut - 4, data.size)
     array: Any = data  # NumPy's stubs do not make an array a Buffer for bytes.join
