@@ -239,6 +239,7 @@ class FleetGraph:
     inlier_probability: float = 0.99
     """GNC's inlier threshold: a closure whose whitened error exceeds this quantile of χ²(6) is an outlier."""
     max_iterations: int = 20
+    """Levenberg–Marquardt iterations of a solve with nothing to start from (each GNC step too)."""
     warm_iterations: int = 1
     """Levenberg–Marquardt iterations of a solve that starts from the previous one's result (iSAM2 likewise takes one
     step per update; an agent newly placed starts where GNC's judging solve put it): from there one step reaches the
@@ -250,7 +251,6 @@ class FleetGraph:
     """Relative decrease of the error under which a solve counts as converged (GTSAM's default)."""
     absolute_error_tol: float = 1e-5
     """Decrease of the error under which a solve counts as converged, whatever the error (GTSAM's default)."""
-    """Levenberg–Marquardt iterations per solve (each GNC step too)."""
     gnc_budget: int = 200
     """Most variables of one solve's GNC: closures waiting for a verdict are judged a group of agents at a time
     (those waiting longest first, as many agents as this many of their keyframe variables hold, at least the two of
@@ -414,6 +414,9 @@ class FleetGraph:
             self._solution, self._verdicts, self._pending_since, self._warm = {}, {}, {}, None
             self._solved_reference = reference
         closures = self.closures()
+        if len(self._closure_factors) > 2 * len(closures):  # closures of agents dropped or restarted
+            valid = {id(c) for c in closures.values()}
+            self._closure_factors = {k: v for k, v in self._closure_factors.items() if k in valid}
         self._update_pairs(closures.values())
         connected = self.connected()
         candidates = {a for a in connected if self.agents[a].mirror.poses}
@@ -598,12 +601,13 @@ class FleetGraph:
             graph.add(g.PriorFactorPose3(keys[0], g.Pose3(anchor), g.noiseModel.Isotropic.Sigma(6, 1e-4)))
         else:
             graph.add(g.PriorFactorPose3(keys[0], g.Pose3(guesses[0]), g.noiseModel.Isotropic.Sigma(6, 100.0)))
-        graph.push_back(self._odometry(state, chain))
+        graph.push_back(self._odometry(agent, chain))
         return chain
 
-    def _odometry(self, state: _Agent, chain: NDArray[np.intp]) -> Any:
-        """The odometry factors between consecutive keyframes of ``chain`` (positions in ``state``'s keyframes), from
+    def _odometry(self, agent: str, chain: NDArray[np.intp]) -> Any:
+        """The odometry factors between consecutive keyframes of ``chain`` (positions in ``agent``'s keyframes), from
         the agent's own poses; made once per version of its graph and chain."""
+        state = self.agents[agent]
         cache_key = chain.tobytes()
         factors = state.odometry.get(cache_key)
         if factors is not None:
@@ -611,7 +615,7 @@ class FleetGraph:
         g = _gtsam()
         own = state.keyframes()
         factors = g.NonlinearFactorGraph()
-        keys = ((state.slot << _SLOT_BITS) | own.ids[chain]).tolist()
+        keys = self._keys(agent, own.ids[chain]).tolist()
         spans = np.diff(chain).tolist()
         for a, b, span, relative in zip(keys[:-1], keys[1:], spans, _steps(own.poses[chain]), strict=True):
             if span not in self._odometry_noise:  # the steps' errors add up: sigma grows with their square root
