@@ -128,16 +128,14 @@ def path_cdr(frame_id: str, stamp_ns: int, poses: NDArray[np.float64], stamps_ns
                         "formats": ["<i4", "<u4", "<u4", f"S{len(name)}", ("<f8", 7)],
                         "offsets": [0, 4, 8, 12, pose_at], "itemsize": pose_at + 56})  # fmt: skip
     first_size = -(-(first_shift + 12 + len(name)) // 8) * 8 - first_shift + 56
-    out = np.zeros(len(head) + first_size + (len(stack) - 1) * element.itemsize, dtype=np.uint8)
-    out[: len(head)] = np.frombuffer(head, dtype=np.uint8)
     first = struct.pack("<iII", seconds[0], nanoseconds[0], len(name)) + name
     first += bytes(first_size - 56 - len(first)) + values[0].astype("<f8").tobytes()
-    out[len(head) : len(head) + first_size] = np.frombuffer(first, dtype=np.uint8)
-    rest = out[len(head) + first_size :].view(element)
+    out = head + first + bytes((len(stack) - 1) * element.itemsize)
+    rest = np.frombuffer(out, dtype=element, offset=len(head) + first_size)  # a view: written in place
     rest["sec"], rest["nanosec"], rest["length"] = seconds[1:], nanoseconds[1:], len(name)
     rest["frame"] = name
     rest["pose"] = values[1:]
-    return bytearray(out.tobytes())
+    return out
 
 
 def planar_pose_msg(x: float, y: float, yaw: float) -> Any:
