@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -92,6 +93,8 @@ class FeatureExtractor:
         elif kind == "sift":
             self._detector = cv2.SIFT_create(nfeatures=n_detect)
         elif kind == "akaze":
+            if not hasattr(cv2, "AKAZE_create"):  # OpenCV 5 moved AKAZE out of its main modules
+                raise ValueError(f"feature kind 'akaze' needs an OpenCV with AKAZE; OpenCV {cv2.__version__} has none")
             self._detector = cv2.AKAZE_create()
         else:
             raise ValueError(f"feature kind {kind!r} is not one of orb, sift, akaze")
@@ -101,20 +104,32 @@ class FeatureExtractor:
         """Whether descriptors are binary (Hamming distance)."""
         return self.kind in ("orb", "akaze")
 
+    def _bucket(self, keypoints: Sequence[Any], shape: tuple[int, int]) -> NDArray[np.intp]:
+        """Indices of the keypoints :func:`bucket` keeps."""
+        pts = import_cv2().KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
+        resp = np.array([k.response for k in keypoints], dtype=np.float32)
+        return bucket(pts, resp, shape, self.grid[0], self.grid[1], self.max_features)
+
     def detect(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Features:
         """Keypoints and descriptors of one grayscale image."""
-        keypoints = self._detector.detect(gray, mask)
-        if keypoints:
-            pts = np.array([k.pt for k in keypoints], dtype=np.float32)
-            resp = np.array([k.response for k in keypoints], dtype=np.float32)
-            keep = bucket(pts, resp, gray.shape[:2], self.grid[0], self.grid[1], self.max_features)
-            keypoints = [keypoints[i] for i in keep]
-        keypoints, descriptors = self._detector.compute(gray, keypoints)
+        cv2 = import_cv2()
+        if self.kind == "orb":
+            # One pass: ORB's compute() builds the image pyramid again, which costs more than describing the
+            # keypoints bucketing will drop (the kept descriptors are the same bytes either way).
+            keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
+            if keypoints and descriptors is not None:
+                keep = self._bucket(keypoints, gray.shape[:2])
+                keypoints, descriptors = [keypoints[i] for i in keep], descriptors[keep]
+        else:  # SIFT/AKAZE: describing is the expensive part, so only the keypoints kept are described
+            keypoints = self._detector.detect(gray, mask)
+            if keypoints:
+                keypoints = [keypoints[i] for i in self._bucket(keypoints, gray.shape[:2])]
+            keypoints, descriptors = self._detector.compute(gray, keypoints)
         if descriptors is None or not keypoints:
             dim, dtype = (32, np.uint8) if self.binary else (128, np.float32)
             empty = np.zeros(0, np.float32)
             return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), empty, empty)
-        pts = np.array([k.pt for k in keypoints], dtype=np.float32).reshape(-1, 2)
+        pts = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
         resp = np.array([k.response for k in keypoints], dtype=np.float32)
         if self.kind == "orb":
             scales = (self.scale_factor ** np.array([k.octave & 0xFF for k in keypoints])).astype(np.float32)
