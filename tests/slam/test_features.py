@@ -45,5 +45,5 @@ def test_no_corners_gives_empty_features(texture: np.ndarray) -> None:
 
 @pytest.mark.skipif(hasattr(cv2, "AKAZE_create"), reason="this OpenCV has AKAZE")
 def test_akaze_without_it_in_opencv_is_a_clear_error() -> None:
-    with pytest.raises(ValueError, match="akaze.*OpenCV"):
+    with pytest.raises(ValueError, match=r"akaze.*OpenCV"):
         FeatureExtractor("akaze")

@@ -248,6 +248,7 @@ class VisualOdometry:
         """Keypoints without depth of the window's keyframes, oldest first, waiting to be triangulated."""
         self._lost_frames = 0
         self._adjustment_pending = False
+        self._insertion_pending: _InsertionPending | None = None
         self._fusion_pending: _FusionPending | None = None
         """The newest keyframe's keypoints, for the landmark fusion that precedes the window's adjustment."""
         self.fused_landmarks = 0
@@ -343,10 +344,10 @@ class VisualOdometry:
         tracked_ids = self.local_map.ids[matched_map[inliers]]
         self.local_map.last_seen[matched_map[inliers]] = self.frames
         is_keyframe = self._needs_keyframe(pose, int(inliers.sum()))
-        t_kf = time.perf_counter()
         if is_keyframe:
-            pose = self._insert_keyframe(pose, frame, matched_frame[inliers], tracked_ids)
-        timings["keyframe"] = (time.perf_counter() - t_kf) * 1e3
+            # Making the keyframe (its new landmarks, the triangulation, its surface) is local mapping's work, as
+            # in ORB-SLAM: the frame's pose goes out first (local_mapping(), or the next track(), makes it).
+            self._insertion_pending = _InsertionPending(pose.copy(), frame, matched_frame[inliers], tracked_ids)
         return self._finish(pose, int(inliers.sum()), len(matched_frame), is_keyframe, False, frame, timings, t0)
 
     # -- tracking -----------------------------------------------------------------------------------------------
@@ -574,10 +575,14 @@ class VisualOdometry:
         return pose
 
     def local_mapping(self) -> NDArray[np.float64] | None:
-        """Bundle-adjust the window after a new keyframe (ORB-SLAM's local mapping: the keyframe's pose is
-        published first, the adjustment follows before the next frame is tracked); returns the keyframe's
+        """Make the new keyframe (its landmarks, the triangulation, its surface) and bundle-adjust the window
+        (ORB-SLAM's local mapping: the keyframe's pose is published first, this follows before the next frame is
+        tracked); returns the keyframe's
         adjusted pose, or None when nothing was pending. :meth:`track` runs a pending adjustment itself first, so
         the results are the same whether or not the caller runs it in between."""
+        insertion, self._insertion_pending = self._insertion_pending, None
+        if insertion is not None:
+            self._insert_keyframe(insertion.pose, insertion.frame, insertion.tracked, insertion.tracked_ids)
         if not self._adjustment_pending:
             return None
         self._adjustment_pending = False
@@ -874,6 +879,7 @@ class VisualOdometry:
         """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
         from it: the local map is re-seeded with this frame's points at the corrected pose."""
         self._adjustment_pending = False  # the window it would adjust is dropped
+        self._insertion_pending = None
         self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
         self._velocity = np.eye(4)
         self.local_map.clear()
@@ -961,6 +967,18 @@ class _Candidates:
         keep = np.ones(len(self.pixels), bool)
         keep[rows] = False
         self.pixels, self.descriptors, self.scales = self.pixels[keep], self.descriptors[keep], self.scales[keep]
+
+
+@dataclass
+class _InsertionPending:
+    """A frame that becomes a keyframe, waiting for local mapping to add it to the map and the window."""
+
+    pose: NDArray[np.float64]
+    frame: _Frame
+    tracked: NDArray[np.intp]
+    """Its keypoints that tracked a landmark."""
+    tracked_ids: NDArray[np.int64]
+    """Those landmarks."""
 
 
 @dataclass
