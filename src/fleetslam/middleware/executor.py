@@ -95,7 +95,9 @@ class Executor:
                     os.close(fd)
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        self.post(None)
+        self._work.append(None)  # the end of the line: what was posted before it still runs
+        if self._waiting:
+            self._wake()
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout_s)
         if self._thread.is_alive():  # a long callback: the exit must still wait for it (see lifetime)
