@@ -123,8 +123,11 @@ def test_stop_from_its_own_callback_ends_the_thread_after_what_was_queued_before
         executor.stop()  # from the executor's own thread: returns at once, the thread ends after this callback
         executor.post(lambda: ran.append("posted after stop"))
 
+    release = threading.Event()
+    executor.post(lambda: release.wait(5.0))  # hold the executor until both are queued, in this order
     executor.post(stop_then_post)
     executor.post(lambda: ran.append("queued before stop"))
+    release.set()
     assert wait_until(lambda: not executor._thread.is_alive())
     assert ran == ["queued before stop"]
 
