@@ -42,9 +42,10 @@ class Executor:
 
     Work waits in a deque. The thread sleeps on a wake-up file descriptor (an eventfd; a pipe where the platform
     has none) only when it finds the deque empty, and a post writes to it only then: a post to a busy executor is
-    an append, nothing more. The write gives up the GIL for its system call, so the woken thread can take the GIL
-    at once instead of waking, finding it held by the poster and sleeping again until the poster lets it go (a
-    queue's lock release keeps the GIL): the lone 1 MB frame's hand-off, see docs/middleware-api.md.
+    an append, nothing more. The write gives up the GIL for its system call, so a woken thread that gets going
+    meanwhile takes the GIL at once instead of finding it held by the poster and sleeping again until the poster
+    lets it go (a queue's lock release keeps the GIL). Measured for the lone 1 MB frame's hand-off in
+    docs/middleware-api.md ("The executor's wake-up per lone frame").
     """
 
     def __init__(self, name: str, on_error: Callable[[str, BaseException], None]) -> None:
