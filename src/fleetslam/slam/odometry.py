@@ -533,10 +533,9 @@ class VisualOdometry:
 
     def _insert_keyframe(
         self, pose: NDArray[np.float64], frame: _Frame, tracked: NDArray[np.intp], tracked_ids: NDArray[np.int64]
-    ) -> NDArray[np.float64]:
+    ) -> None:
         """Add the frame's new landmarks (measured depth, and triangulated with the last keyframe where the depth
-        camera saw nothing) and the frame to the window, bundle-adjust the window; returns the frame's adjusted
-        pose."""
+        camera saw nothing) and the frame to the window, and mark the window's adjustment pending."""
         new = frame.valid.copy()
         new[tracked] = False
         new_index = np.flatnonzero(new)
@@ -572,14 +571,13 @@ class VisualOdometry:
         self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
         self._keyframe_tracked = int(frame.valid.sum())
-        return pose
 
     def local_mapping(self) -> NDArray[np.float64] | None:
         """Make the new keyframe (its landmarks, the triangulation, its surface) and bundle-adjust the window
         (ORB-SLAM's local mapping: the keyframe's pose is published first, this follows before the next frame is
-        tracked); returns the keyframe's
-        adjusted pose, or None when nothing was pending. :meth:`track` runs a pending adjustment itself first, so
-        the results are the same whether or not the caller runs it in between."""
+        tracked); returns the keyframe's adjusted pose, or None when no adjustment was pending. :meth:`track` runs
+        pending local mapping itself first, so the results are the same whether or not the caller runs it in
+        between."""
         insertion, self._insertion_pending = self._insertion_pending, None
         if insertion is not None:
             self._insert_keyframe(insertion.pose, insertion.frame, insertion.tracked, insertion.tracked_ids)
@@ -870,7 +868,7 @@ class VisualOdometry:
         self._coasted = 0.0
         self._lost_frames = 0
         self._keyframe_pose = None
-        pose = self._insert_keyframe(pose, frame, np.zeros(0, np.intp), np.zeros(0, np.int64))
+        self._insert_keyframe(pose, frame, np.zeros(0, np.intp), np.zeros(0, np.int64))
         result = self._finish(pose, 0, 0, True, lost, frame, timings, t0, coasting=coasting)
         result.map_restarted = True
         return result
