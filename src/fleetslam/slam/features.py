@@ -104,33 +104,30 @@ class FeatureExtractor:
         """Whether descriptors are binary (Hamming distance)."""
         return self.kind in ("orb", "akaze")
 
-    def _bucket(self, keypoints: Sequence[Any], shape: tuple[int, int]) -> NDArray[np.intp]:
-        """Indices of the keypoints :func:`bucket` keeps."""
-        pts = import_cv2().KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
-        resp = np.array([k.response for k in keypoints], dtype=np.float32)
-        return bucket(pts, resp, shape, self.grid[0], self.grid[1], self.max_features)
-
     def detect(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Features:
         """Keypoints and descriptors of one grayscale image."""
-        cv2 = import_cv2()
         if self.kind == "orb":
             # One pass: ORB's compute() builds the image pyramid again, which costs more than describing the
             # keypoints bucketing will drop (the kept descriptors are the same bytes either way).
             keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
             if keypoints and descriptors is not None:
-                keep = self._bucket(keypoints, gray.shape[:2])
+                pts, resp = _points(keypoints)
+                keep = bucket(pts, resp, gray.shape[:2], self.grid[0], self.grid[1], self.max_features)
                 keypoints, descriptors = [keypoints[i] for i in keep], descriptors[keep]
+                pts, resp = pts[keep], resp[keep]
         else:  # SIFT/AKAZE: describing is the expensive part, so only the keypoints kept are described
             keypoints = self._detector.detect(gray, mask)
             if keypoints:
-                keypoints = [keypoints[i] for i in self._bucket(keypoints, gray.shape[:2])]
+                pts, resp = _points(keypoints)
+                keep = bucket(pts, resp, gray.shape[:2], self.grid[0], self.grid[1], self.max_features)
+                keypoints = [keypoints[i] for i in keep]
             keypoints, descriptors = self._detector.compute(gray, keypoints)
+            if keypoints:  # compute() may drop keypoints it cannot describe
+                pts, resp = _points(keypoints)
         if descriptors is None or not keypoints:
             dim, dtype = (32, np.uint8) if self.binary else (128, np.float32)
             empty = np.zeros(0, np.float32)
             return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), empty, empty)
-        pts = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
-        resp = np.array([k.response for k in keypoints], dtype=np.float32)
         if self.kind == "orb":
             scales = (self.scale_factor ** np.array([k.octave & 0xFF for k in keypoints])).astype(np.float32)
             # ORB reports a level's pixel x_L as x_L·s; its centre is at (x_L + ½)·s − ½ in the full image.
@@ -139,3 +136,9 @@ class FeatureExtractor:
             sizes = np.array([k.size for k in keypoints], dtype=np.float32)
             scales = np.maximum(sizes / max(float(sizes.min()), 1e-6), 1.0).astype(np.float32)
         return Features(pts, descriptors, resp, scales)
+
+
+def _points(keypoints: Sequence[Any]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """OpenCV keypoints' positions (N, 2) and responses (N,)."""
+    pts = import_cv2().KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
+    return pts, np.array([k.response for k in keypoints], dtype=np.float32)
