@@ -38,6 +38,15 @@ class FeatureConfig(ConfigModel):
     """ORB's descriptor patch (pixels) on a 640-pixel-wide image; scaled down with smaller images, so that it
     covers the same part of the scene and features come as close to the border."""
 
+    subpixel_window: int = Field(default=0, ge=0)
+    """Sub-pixel keypoint positions (ORB only): half-size in pixels, on the finest pyramid level, of the window in
+    which ``cv2.cornerSubPix`` refines each kept keypoint (scaled by its level's pixel size); 0: keypoints stay
+    on their level's pixel grid. Descriptors are not recomputed."""
+
+    subpixel_max_shift: float = Field(default=0.75, gt=0.0)
+    """A keypoint that the sub-pixel refinement moves farther than this (in its level's pixels) keeps its detected
+    position."""
+
 
 class OdometryConfig(ConfigModel):
     """The odometry front-end; the other fields configure the ``visual`` one, frame-to-local-map visual odometry

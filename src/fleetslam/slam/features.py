@@ -73,12 +73,17 @@ class FeatureExtractor:
         orb_fast_threshold: int = 12,
         orb_levels: int = 4,
         orb_patch_size: int = 31,
+        *,
+        subpixel_window: int = 0,
+        subpixel_max_shift: float = 0.75,
     ) -> None:
         cv2 = import_cv2()
         self.kind = kind
         self.max_features = max_features
         self.scale_factor = 1.2  # OpenCV's ORB default pyramid step
         self.grid = (grid_rows, grid_cols)
+        self.subpixel_window = subpixel_window
+        self.subpixel_max_shift = subpixel_max_shift
         # Detect more than kept so that bucketing can choose per cell.
         n_detect = 2 * max_features
         if kind == "orb":
@@ -132,10 +137,57 @@ class FeatureExtractor:
             scales = (self.scale_factor ** np.array([k.octave & 0xFF for k in keypoints])).astype(np.float32)
             # ORB reports a level's pixel x_L as x_L·s; its centre is at (x_L + ½)·s − ½ in the full image.
             pts += ((scales - 1.0) / 2.0)[:, None]
+            if self.subpixel_window > 0:
+                pts = refine_subpixel(gray, pts, scales, self.subpixel_window, self.subpixel_max_shift)
         else:  # SIFT/AKAZE: the keypoint's size relative to the smallest detected stands in for the level
             sizes = np.array([k.size for k in keypoints], dtype=np.float32)
             scales = np.maximum(sizes / max(float(sizes.min()), 1e-6), 1.0).astype(np.float32)
         return Features(pts, descriptors, resp, scales)
+
+
+def refine_subpixel(
+    gray: NDArray[np.uint8],
+    points: NDArray[np.float32],
+    scales: NDArray[np.float32],
+    window: int,
+    max_shift: float,
+    iterations: int = 3,
+) -> NDArray[np.float32]:
+    """``points`` moved to the sub-pixel corner position in ``gray``: the point ``q`` to which the image gradients
+    ``g`` around it are orthogonal, ``Σ g gᵀ (q − p) = 0`` over the pixels ``p`` of a square window of
+    ``window·scale`` pixels either side (Förstner's corner, as OpenCV's ``cornerSubPix`` finds it, there with
+    resampled windows). The window sums come from integral images, a few look-ups per point whatever its window;
+    the window is re-centred on the nearest pixel ``iterations`` times. A point whose window holds no corner (a
+    nearly singular ``Σ g gᵀ``: an edge or a flat patch), that moves farther than ``max_shift·scale`` pixels or
+    leaves the image keeps its detected position."""
+    cv2 = import_cv2()
+    h, w = gray.shape[:2]
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1)
+    xs = np.arange(w, dtype=np.float32)[None, :]
+    ys = np.arange(h, dtype=np.float32)[:, None]
+    gxx, gxy, gyy = gx * gx, gx * gy, gy * gy
+    # Float64: window sums are differences of sums over the whole image.
+    integrals = [cv2.integral(m, sdepth=cv2.CV_64F) for m in (gxx, gxy, gyy, gxx * xs + gxy * ys, gxy * xs + gyy * ys)]
+    half = np.maximum(1, np.rint(window * scales.astype(np.float64))).astype(np.intp)
+    q = points.astype(np.float64)
+    valid = np.ones(len(q), bool)
+    for _ in range(iterations):
+        cx = np.clip(np.rint(q[:, 0]).astype(np.intp), 0, w - 1)
+        cy = np.clip(np.rint(q[:, 1]).astype(np.intp), 0, h - 1)
+        x0, x1 = np.clip(cx - half, 0, w), np.clip(cx + half + 1, 0, w)
+        y0, y1 = np.clip(cy - half, 0, h), np.clip(cy + half + 1, 0, h)
+        sxx, sxy, syy, bx, by = (s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0] for s in integrals)
+        det = sxx * syy - sxy * sxy
+        trace = sxx + syy
+        valid &= det > 1e-4 * trace * trace  # the smaller eigenvalue is not negligible: gradients in two directions
+        safe = np.where(valid, det, 1.0)
+        solved = np.stack([(syy * bx - sxy * by) / safe, (sxx * by - sxy * bx) / safe], 1)
+        q = np.where(valid[:, None], solved, q)
+    shift = np.linalg.norm(q - points, axis=1)
+    inside = (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+    good = valid & inside & (shift <= max_shift * scales)
+    return np.where(good[:, None], q, points).astype(np.float32)
 
 
 def _points(keypoints: Sequence[Any]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
