@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fleetslam.slam.features import FeatureExtractor, Features, bucket, refine_subpixel
+from fleetslam.slam.features import FeatureExtractor, Features, SubpixelRefiner, bucket
 
 from .textured_room import make_textures
 
@@ -87,11 +87,11 @@ def test_subpixel_refinement_keeps_points_without_a_corner() -> None:
     image = np.full((60, 80), 50, np.uint8)
     image[:, 40:] = 200
     points = np.array([[39.0, 30.0], [40.0, 20.0], [10.0, 30.0]], np.float32)
-    refined = refine_subpixel(image, points, np.ones(3, np.float32), window=5, max_shift=5.0)
-    np.testing.assert_array_equal(refined, points)
+    refiner = SubpixelRefiner(window=5, max_shift=5.0)
+    np.testing.assert_array_equal(refiner.refine(image, points, np.ones(3, np.float32)), points)
     # …while a corner's point moves to it, within the allowed shift only.
     image[:30, :] = 50
-    corner = refine_subpixel(image, points[:1] + 1.0, np.ones(1, np.float32), window=5, max_shift=5.0)
-    np.testing.assert_allclose(corner, [[39.5, 29.5]], atol=0.05)
-    held = refine_subpixel(image, points[:1] + 1.0, np.ones(1, np.float32), window=5, max_shift=0.5)
-    np.testing.assert_array_equal(held, points[:1] + 1.0)
+    near = points[:1] + 1.0
+    np.testing.assert_allclose(refiner.refine(image, near, np.ones(1, np.float32)), [[39.5, 29.5]], atol=0.05)
+    held = SubpixelRefiner(window=5, max_shift=0.5).refine(image, near, np.ones(1, np.float32))
+    np.testing.assert_array_equal(held, near)
