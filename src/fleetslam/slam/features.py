@@ -21,16 +21,12 @@ def import_cv2() -> Any:
 class Features:
     """``keypoints (N, 2) float32`` pixel coordinates, ``descriptors (N, D)``, detector ``responses (N,)`` and
     ``scales (N,)``: the pixel size of the pyramid level each keypoint was found on, in full-resolution pixels
-    (1 on the finest level), which is also the standard deviation of its position in units of the finest pixel.
-    ``detected (N, 2)``: where the detector found each keypoint, when sub-pixel refinement moved it (else empty):
-    a refined keypoint sits on a corner's apex, where an object's silhouette meets its background, so its depth
-    is read where it was detected, inside the corner."""
+    (1 on the finest level), which is also the standard deviation of its position in units of the finest pixel."""
 
     keypoints: NDArray[np.float32]
     descriptors: NDArray[Any]
     responses: NDArray[np.float32]
     scales: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
-    detected: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 2), np.float32))
 
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
@@ -141,7 +137,7 @@ class FeatureExtractor:
             # ORB reports a level's pixel x_L as x_L·s; its centre is at (x_L + ½)·s − ½ in the full image.
             pts += ((scales - 1.0) / 2.0)[:, None]
             if self._refiner is not None:
-                return Features(self._refiner.refine(gray, pts, scales), descriptors, resp, scales, pts)
+                pts = self._refiner.refine(gray, pts, scales)
         else:  # SIFT/AKAZE: the keypoint's size relative to the smallest detected stands in for the level
             sizes = np.array([k.size for k in keypoints], dtype=np.float32)
             scales = np.maximum(sizes / max(float(sizes.min()), 1e-6), 1.0).astype(np.float32)

@@ -58,19 +58,15 @@ def backproject(
     intrinsics: Intrinsics,
     min_depth: float,
     max_depth: float,
-    *,
-    depth_at: NDArray[np.float32] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """3D points (camera frame) of keypoints from the depth image, and which are valid; ``depth_at`` (N, 2): where
-    to read each keypoint's depth, if not at the keypoint (a sub-pixel keypoint's detected position).
+    """3D points (camera frame) of keypoints from the depth image, and which are valid.
 
     The depth is interpolated bilinearly between the four pixels around the keypoint when they lie on one surface
     (within 3 % of each other), else taken from the nearest pixel: a keypoint sits between pixels, and on a wall
     seen at an angle the nearest pixel's depth is off by up to half a pixel's depth gradient."""
     h, w = depth.shape
-    at = keypoints if depth_at is None else depth_at
-    x = np.clip(at[:, 0].astype(np.float64), 0.0, w - 1.0)
-    y = np.clip(at[:, 1].astype(np.float64), 0.0, h - 1.0)
+    x = np.clip(keypoints[:, 0].astype(np.float64), 0.0, w - 1.0)
+    y = np.clip(keypoints[:, 1].astype(np.float64), 0.0, h - 1.0)
     u0 = np.minimum(np.floor(x).astype(np.intp), w - 2) if w > 1 else np.zeros(len(x), np.intp)
     v0 = np.minimum(np.floor(y).astype(np.intp), h - 2) if h > 1 else np.zeros(len(y), np.intp)
     u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
@@ -326,12 +322,7 @@ class VisualOdometry:
             mask = ((depth > self.config.min_depth) & (depth < self.config.max_depth)).astype(np.uint8)
         feats = self.extractor.detect(gray, mask)
         points_cam, valid = backproject(
-            feats.keypoints,
-            depth,
-            self.intrinsics,
-            self.config.min_depth,
-            self.config.max_depth,
-            depth_at=feats.detected if len(feats.detected) else None,
+            feats.keypoints, depth, self.intrinsics, self.config.min_depth, self.config.max_depth
         )
         t1 = time.perf_counter()
         timings["features"] = (t1 - t0) * 1e3
