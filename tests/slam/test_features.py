@@ -68,7 +68,7 @@ def test_subpixel_keypoints_sit_on_the_corners() -> None:
     # ORB's FAST keypoints lie on their level's pixel grid, about a pixel inside a corner; refined, on its apex.
     image, corners = _squares((0.3, 0.6))
     plain = FeatureExtractor(orb_patch_size=15).detect(image)
-    refined = FeatureExtractor(orb_patch_size=15, subpixel_window=5, subpixel_max_shift=5.0).detect(image)
+    refined = FeatureExtractor(orb_patch_size=15, subpixel_window=5).detect(image)
     # Describing is unchanged: the same keypoints in the same order, only their positions moved.
     np.testing.assert_array_equal(refined.descriptors, plain.descriptors)
     np.testing.assert_array_equal(refined.scales, plain.scales)
@@ -87,7 +87,7 @@ def test_subpixel_refinement_keeps_points_without_a_corner() -> None:
     image = np.full((60, 80), 50, np.uint8)
     image[:, 40:] = 200
     points = np.array([[39.0, 30.0], [40.0, 20.0], [10.0, 30.0]], np.float32)
-    refiner = SubpixelRefiner(window=5, max_shift=5.0)
+    refiner = SubpixelRefiner(window=5)
     np.testing.assert_array_equal(refiner.refine(image, points, np.ones(3, np.float32)), points)
     # …while a corner's point moves to it, within the allowed shift only.
     image[:30, :] = 50

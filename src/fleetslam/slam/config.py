@@ -39,13 +39,12 @@ class FeatureConfig(ConfigModel):
     covers the same part of the scene and features come as close to the border."""
 
     subpixel_window: int = Field(default=0, ge=0)
-    """Sub-pixel keypoint positions (ORB only): half-size in pixels, on the finest pyramid level, of the window in
-    which ``cv2.cornerSubPix`` refines each kept keypoint (scaled by its level's pixel size); 0: keypoints stay
-    on their level's pixel grid. Descriptors are not recomputed."""
-
-    subpixel_max_shift: float = Field(default=0.75, gt=0.0)
-    """A keypoint that the sub-pixel refinement moves farther than this (in its level's pixels) keeps its detected
-    position."""
+    """Sub-pixel keypoint positions (ORB): each kept keypoint moves to the corner that the image gradients in a
+    window around it define (:class:`~fleetslam.slam.features.SubpixelRefiner`); this is the window's half-size
+    in pixels on a 640-pixel-wide image (scaled with the image like ``orb_patch_size``, and by the pixel size of
+    the keypoint's pyramid level); a keypoint that would leave its window, or whose window holds an edge or a flat
+    patch rather than a corner, stays where ORB found it. 0: keypoints stay on their level's pixel grid.
+    Descriptors are computed where ORB found the keypoints either way."""
 
 
 class OdometryConfig(ConfigModel):

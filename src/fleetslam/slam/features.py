@@ -75,14 +75,15 @@ class FeatureExtractor:
         orb_patch_size: int = 31,
         *,
         subpixel_window: int = 0,
-        subpixel_max_shift: float = 0.75,
     ) -> None:
+        """``subpixel_window`` > 0: ORB keypoints are refined to sub-pixel positions (:class:`SubpixelRefiner`,
+        with that window, allowed to move within it)."""
         cv2 = import_cv2()
         self.kind = kind
         self.max_features = max_features
         self.scale_factor = 1.2  # OpenCV's ORB default pyramid step
         self.grid = (grid_rows, grid_cols)
-        self._refiner = SubpixelRefiner(subpixel_window, subpixel_max_shift) if subpixel_window > 0 else None
+        self._refiner = SubpixelRefiner(subpixel_window) if subpixel_window > 0 else None
         # Detect more than kept so that bucketing can choose per cell.
         n_detect = 2 * max_features
         if kind == "orb":
@@ -154,9 +155,10 @@ class SubpixelRefiner:
     patch), that moves farther than ``max_shift·scale`` pixels or leaves the image keeps its position. The image
     buffers are kept from one call to the next: fresh ones cost more in page faults than the arithmetic."""
 
-    def __init__(self, window: int, max_shift: float, iterations: int = 3) -> None:
+    def __init__(self, window: int, max_shift: float | None = None, iterations: int = 3) -> None:
+        """``max_shift`` defaults to ``window``: a point that leaves its window has not found its own corner."""
         self.window = window
-        self.max_shift = max_shift
+        self.max_shift = float(window) if max_shift is None else max_shift
         self.iterations = iterations
         self._buffers: dict[str, NDArray[Any]] = {}
         self._shape: tuple[int, int] | None = None

@@ -232,8 +232,7 @@ class VisualOdometry:
             fc.orb_fast_threshold,
             fc.orb_levels,
             patch,
-            subpixel_window=fc.subpixel_window,
-            subpixel_max_shift=fc.subpixel_max_shift,
+            subpixel_window=max(1, round(fc.subpixel_window * self._pixel_scale)) if fc.subpixel_window else 0,
         )
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
