@@ -225,7 +225,14 @@ class VisualOdometry:
         # full-size patch would only blur the descriptor and keep features a patch away from the border.
         patch = max(15, round(fc.orb_patch_size * min(self._pixel_scale, 1.0)))
         self.extractor = FeatureExtractor(
-            fc.kind, fc.max_features, fc.grid_rows, fc.grid_cols, fc.orb_fast_threshold, fc.orb_levels, patch
+            fc.kind,
+            fc.max_features,
+            fc.grid_rows,
+            fc.grid_cols,
+            fc.orb_fast_threshold,
+            fc.orb_levels,
+            patch,
+            subpixel_window=max(1, round(fc.subpixel_window * self._pixel_scale)) if fc.subpixel_window else 0,
         )
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
