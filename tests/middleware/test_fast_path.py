@@ -17,6 +17,7 @@ from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
 from fleetslam.msg.typesys import (
     SPLICE_MIN_BYTES,
     deserialize,
+    ends_in_byte_array,
     get_type,
     get_typestore,
     header,
@@ -106,6 +107,10 @@ def test_large_byte_array_is_joined_into_the_bytes_rosbags_writes(type_name: str
     payload = serialize_payload(msg, type_name)
     assert type(payload) is bytes and payload == reference == serialize(msg, type_name)
     assert serialize_buffer(msg, type_name) == reference
+    for scratch in (bytearray(), bytearray(b"x" * (len(reference) + 9)), bytearray(b"y" * len(reference))):
+        written = serialize_payload(msg, type_name, scratch)  # grown, shrunk, or the right size
+        assert written is scratch and written == reference
+    assert ends_in_byte_array(type_name)
     assert msg.data is data  # the message is left as it was
     decoded = deserialize(payload, type_name)
     assert np.array_equal(decoded.data, data)
@@ -116,6 +121,9 @@ def test_byte_arrays_not_joined_are_serialized_as_before() -> None:
     image = "sensor_msgs/msg/Image"
     msg = message_from_dict(image, {"encoding": "mono8", "data": np.arange(SPLICE_MIN_BYTES - 1, dtype=np.uint8)})
     assert type(serialize_payload(msg, image)) is bytearray  # small: the serializer's own buffer
+    scratch = bytearray(b"kept")
+    assert serialize_payload(msg, image, scratch) is not scratch and scratch == b"kept"  # small: scratch untouched
+    assert not ends_in_byte_array(STRING) and not ends_in_byte_array("nav_msgs/msg/Odometry")
     for data in (  # large, but not a contiguous one-dimensional array of the field's dtype
         np.zeros((256, 512), np.uint8),
         np.zeros(2 * SPLICE_MIN_BYTES, np.uint8)[::2],
@@ -141,6 +149,49 @@ def test_large_byte_array_keeps_rosbags_errors_for_a_wrong_field() -> None:
     msg.width = -1
     with pytest.raises(MessageError, match="cannot serialize"):
         serialize_payload(msg, image)
+
+
+def test_a_publisher_reusing_its_buffer_sends_every_frame_as_it_was(
+    make_context: Callable[..., Context], raw_session: zenoh.Session
+) -> None:
+    """Images of changing sizes (the buffer grows and shrinks), from two threads at once (one of them serializes
+    into a new buffer): every sample that arrives is the CDR of the frame it carries, whole."""
+    image = "sensor_msgs/msg/Image"
+    node = Node("camera", context=make_context("c3po"), statistics_period_s=0)
+    publisher = node.create_publisher(image, "image", QoSProfile(history="keep_all"))
+    received: list[bytes] = []
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        with lock:
+            received.append(sample.payload.to_bytes())
+
+    subscriber = raw_session.declare_subscriber(publisher.key, on_sample)
+    try:
+        wait_until(lambda: publisher._publisher.matching_status.matching, timeout_s=5.0)
+        sizes = [SPLICE_MIN_BYTES * k + k for k in (4, 1, 3, 3, 2, 5, 1)]
+
+        def frames(seed: int) -> list[object]:
+            return [
+                message_from_dict(image, {"encoding": "mono8", "height": 1, "width": n, "step": n,
+                                          "data": np.full(n, (seed * 16 + i) % 256, np.uint8)})
+                for i, n in enumerate(sizes)
+            ]  # fmt: skip
+
+        def publish_all(seed: int) -> None:
+            for msg in frames(seed):
+                publisher.publish(msg)
+
+        threads = [threading.Thread(target=publish_all, args=(seed,)) for seed in (1, 2)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        wait_until(lambda: len(received) == 2 * len(sizes), timeout_s=10.0)
+        expected = sorted(serialize(msg, image) for seed in (1, 2) for msg in frames(seed))
+        assert sorted(received) == expected
+    finally:
+        subscriber.undeclare()
 
 
 def test_publishers_number_samples_uniquely_from_many_threads(
