@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from fleetslam import __version__
+from fleetslam.allocator import keep_freed_memory
 from fleetslam.errors import FleetslamError
 
 #: command name -> (module, one-line help). Order is the order shown by ``fleetslam --help``.
@@ -95,6 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"fleetslam: unknown command '{name}'\n\n{_usage(commands)}", file=sys.stderr)
         return 2
     _configure_logging(verbosity)
+    keep_freed_memory()  # every frame's buffers reused, not faulted in afresh (fleetslam.allocator)
     module = importlib.import_module(commands[name][0])
     parser = argparse.ArgumentParser(prog=f"fleetslam {name}", description=commands[name][1])
     module.configure(parser)
