@@ -72,6 +72,8 @@ from typing import Any
 
 import numpy as np
 
+from fleetslam.allocator import keep_freed_memory
+
 PAYLOADS = {"image_1mb": 1 << 20, "string_64b": 64}
 KINECT = {"rgb": ("rgb8", 3, np.uint8), "depth": ("16UC1", 1, np.uint16)}
 """The Kinect pair: topic /bench/kinect/<name> → (encoding, channels, dtype), 640×480 at 30 Hz each."""
@@ -751,6 +753,9 @@ def main() -> None:
         "--payloads", default="image_1mb,string_64b,kinect", help="comma-separated subset of the default"
     )
     args = parser.parse_args()
+    # Every process of the run (each peer's publisher, the subscribers here) runs with the allocator setting the
+    # fleetslam command gives its nodes: the same for raw Zenoh's peer as for fleetslam's.
+    keep_freed_memory()
     if args.role == "pub":
         run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate)
         return
