@@ -11,18 +11,20 @@ from fleetslam.msg.typesys import duration_from_ns, get_type, stamp_from_ns
 SECOND = 1_000_000_000
 
 
-def _window(start_s: float, stop_s: float, ages_ms: list[float], size: int, dropped: int = 0) -> object:
+def _window(
+    start_s: float, stop_s: float, ages_ms: list[float], size: int, dropped: int = 0, node_pub: str = "/fleet_backend"
+) -> object:
     """A TopicStatistics report of one window of /c3po/fleet_path from /fleet_backend to /c3po/slam."""
     mean = pystats.fmean(ages_ms) if ages_ms else 0.0
     std = pystats.pstdev(ages_ms) if ages_ms else 0.0
     return get_type("fleetslam_msgs/msg/TopicStatistics")(
         topic="/c3po/fleet_path",
         type="nav_msgs/msg/Path",
-        node_pub="/fleet_backend",
+        node_pub=node_pub,
         node_sub="/c3po/slam",
         agent_pub="fleet_backend",
         agent_sub="c3po",
-        publisher_gid=np.zeros(16, np.uint8),
+        publisher_gid=np.arange(16, dtype=np.uint8),
         window_start=stamp_from_ns(int(start_s * SECOND)),
         window_stop=stamp_from_ns(int(stop_s * SECOND)),
         delivered_msgs=len(ages_ms),
@@ -74,3 +76,15 @@ def test_run_totals_pool_windows_of_several_messages_and_keep_pairs_apart() -> N
     assert slam.age_mean_ms == pytest.approx(pystats.fmean(first + second), abs=1e-6)
     assert slam.age_std_ms == pytest.approx(pystats.pstdev(first + second), abs=1e-6)
     assert totals["/c3po/mapping"].rate_hz == pytest.approx(0.5)
+
+
+def test_a_window_before_discovery_named_the_publisher_joins_its_run_totals() -> None:
+    table = StatsTable()
+    table.update(_window(0.0, 1.0, [5.0], size=100, node_pub=""))  # the graph did not know the publisher yet
+    table.update(_window(1.0, 2.0, [7.0, 9.0], size=100))
+    (run,) = table.totals()
+    assert run.node_pub == "/fleet_backend" and run.delivered == 3 and run.window_s == pytest.approx(2.0)
+    other = _window(0.0, 2.0, [1.0], size=100)
+    other.publisher_gid = np.full(16, 7, np.uint8)  # another publisher of the same node and topic
+    table.update(other)
+    assert len(table.totals()) == 2

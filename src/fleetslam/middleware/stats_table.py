@@ -128,20 +128,22 @@ class StatsTable:
 
     def __init__(self, stale_s: float = 5.0) -> None:
         self._rows: dict[tuple[str, str, str], StatsRow] = {}
-        self._totals: dict[tuple[str, str, str], _RunTotals] = {}
+        self._totals: dict[tuple[str, bytes, str], _RunTotals] = {}
         self._stale_ns = int(stale_s * 1e9)
 
     def update(self, msg: Any) -> StatsRow:
         row = row_from_message(msg)
-        key = (row.topic, row.node_pub, row.node_sub)
-        self._rows[key] = row
-        self._totals.setdefault(key, _RunTotals(row)).add(row)
+        self._rows[(row.topic, row.node_pub, row.node_sub)] = row
+        # Summed per publisher by its GID, not its node's name: a subscriber's first window can come before discovery
+        # names the publisher ("") and would otherwise stay a pair of its own.
+        publisher = bytes(np.asarray(msg.publisher_gid, np.uint8))
+        self._totals.setdefault((row.topic, publisher, row.node_sub), _RunTotals(row)).add(row)
         return row
 
     def totals(self) -> list[StatsRow]:
-        """One row per pair over every window it reported: counts summed, kB/s and Hz over the span from its first
-        window's start to its latest window's stop, age and period pooled over the messages. One window is a second
-        of traffic; a run's report wants the whole run."""
+        """One row per topic, publisher and subscriber over every window it reported (named as in its latest):
+        counts summed, kB/s and Hz over the span from its first window's start to its latest window's stop, age and
+        period pooled over the messages. One window is a second of traffic; a run's report wants the whole run."""
         return sorted((t.row() for t in self._totals.values()), key=lambda r: (r.agent, r.topic, r.node_sub))
 
     def rows(self, *, agent: str | None = None, now_ns: int | None = None) -> list[StatsRow]:
