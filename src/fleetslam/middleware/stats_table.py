@@ -68,12 +68,12 @@ def row_from_message(msg: Any) -> StatsRow:
 
 
 class _RunTotals:
-    """Every window of one (topic, publisher node, subscriber node) pair, summed: counts and bytes, and the age and
-    period pooled as the moments of all the messages behind each window's mean and standard deviation."""
+    """Every window of one topic, publisher and subscriber, summed: counts and bytes, and the age and period pooled
+    as the moments of all the messages behind each window's mean and standard deviation."""
 
     def __init__(self, first: StatsRow) -> None:
         self.latest = first
-        self.start_ns = first.stamp_ns - int(first.window_s * 1e9)
+        self.start_ns = first.stamp_ns  # :meth:`add` takes it back to the window's start
         self.traffic = self.delivered = self.dropped = self.errors = 0.0
         self.age, self.period = np.zeros(3), np.zeros(3)
         self.age_max_ms = self.period_max_ms = 0.0
@@ -85,9 +85,8 @@ class _RunTotals:
         self.delivered += row.delivered
         self.dropped += row.dropped
         self.errors += row.errors
-        n = row.delivered
-        self.age += (n, n * row.age_mean_ms, n * (row.age_std_ms**2 + row.age_mean_ms**2))
-        self.period += (n, n * row.period_mean_ms, n * (row.period_std_ms**2 + row.period_mean_ms**2))
+        self.age += _moments(row.delivered, row.age_mean_ms, row.age_std_ms)
+        self.period += _moments(row.delivered, row.period_mean_ms, row.period_std_ms)
         self.age_max_ms = max(self.age_max_ms, row.age_max_ms)
         self.period_max_ms = max(self.period_max_ms, row.period_max_ms)
 
@@ -111,6 +110,11 @@ class _RunTotals:
             period_std_ms=period_std,
             period_max_ms=self.period_max_ms,
         )
+
+
+def _moments(n: int, mean: float, std: float) -> tuple[float, float, float]:
+    """(count, sum, sum of squares) of ``n`` values with that mean and standard deviation."""
+    return n, n * mean, n * (std**2 + mean**2)
 
 
 def _pooled(moments: NDArray[np.float64]) -> tuple[float, float]:
