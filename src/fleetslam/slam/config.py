@@ -201,6 +201,25 @@ class OdometryConfig(ConfigModel):
     """Keypoints the depth camera did not measure (beyond its range, on edges) become landmarks when the next
     keyframe sees them again from a useful angle (epipolar search and triangulation, as ORB-SLAM): far texture
     holds the heading where measured points are few."""
+    far_landmarks: bool = False
+    """A keyframe's keypoints without depth that it neither tracked nor triangulated become landmarks at once, as
+    *bearings*: on their rays at 2·``max_depth`` with a weak inverse-depth prior from the keyframe's centre
+    (Civera et al.'s inverse-depth points; ORB-SLAM2 uses far stereo points as monocular ones). Landmark fusion
+    gives them the later keyframes' observations, and the window's adjustment uses their reprojections (their
+    distance free, held only by the prior and the parallax): far texture holds the window's heading from the first
+    keyframe on, where a hall's measured points are mostly floor. Tracking matches only landmarks of known distance:
+    a bearing becomes one when the epipolar triangulation (``triangulate``) finds it, when a keyframe measures its
+    depth, or when the adjustment has narrowed its distance as far as a triangulation at ``min_parallax_deg`` would.
+    Not where the wheels measure the motion (they hold the heading: a ground robot's results do not change). Off by
+    default: measured (benchmarks/slam_matrix.py --set odometry.far_landmarks=true), procedural hall, 320×240,
+    hand-held, ATE at 5/10/15/30 Hz against 2.74/3.52/4.72/2.88 (survey), 1.95/1.97/2.15/4.92 (figure eight) and
+    1.44/1.44/2.33/1.52 cm (loop_revisit) by default: survey 3.50/3.43/4.65/4.83, figure eight 2.31/2.56/3.19/2.88,
+    loop_revisit 2.58/5.08/3.49/2.16 cm; the other designs tried were worse (docs/slam.md, "Tried on those cells")."""
+    bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
+    """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
+    1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),
+    it held the distances of points 5-8 m away at 12 m and the parallax they lacked turned the heading instead
+    (survey at 15 Hz, odometry alone: 6.2 → 9.0 cm); 0.5 let the parallax decide (3.2 cm; 2: 4.4 cm)."""
     min_parallax_deg: float = Field(default=1.0, gt=0.0)
     """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
     triangulation_keyframes: int = Field(default=1, ge=1)
