@@ -213,8 +213,11 @@ class OdometryConfig(ConfigModel):
     Not where the wheels measure the motion (they hold the heading: a ground robot's results do not change). Off by
     default: measured (benchmarks/slam_matrix.py --set odometry.far_landmarks=true), procedural hall, 320×240,
     hand-held, ATE at 5/10/15/30 Hz against 2.74/3.52/4.72/2.88 (survey), 1.95/1.97/2.15/4.92 (figure eight) and
-    1.44/1.44/2.33/1.52 cm (loop_revisit) by default: survey 3.50/3.43/4.65/4.83, figure eight 2.31/2.56/3.19/2.88,
-    loop_revisit 2.58/5.08/3.49/2.16 cm; the other designs tried were worse (docs/slam.md, "Tried on those cells")."""
+    1.44/1.44/2.33/1.52 cm (loop_revisit) by default: survey 3.48/3.38/3.99/2.22, figure eight 2.79/3.53/3.14/5.42,
+    loop_revisit 1.15/1.26/1.83/1.74 cm (6 cells better, 6 worse; 6 within 3 cm instead of 9). The landmarks
+    placed from bearings are not counted by the keyframe rules (counted, fewer keyframes were made and fewer loops
+    closed, as with ``triangulation_keyframes``). Nine other designs were worse (docs/slam.md, "Far features as
+    bearings")."""
     bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
     """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
     1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),

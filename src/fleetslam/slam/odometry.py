@@ -363,7 +363,10 @@ class VisualOdometry:
         self._lost_frames = 0
         tracked_ids = self.local_map.ids[matched_map[inliers]]
         self.local_map.last_seen[matched_map[inliers]] = self.frames
-        is_keyframe = self._needs_keyframe(pose, int(inliers.sum()))
+        # Landmarks placed from bearings do not delay keyframes: the keyframe rules count the map a keyframe could
+        # have made without them (more tracked, fewer keyframes, fewer loops closed: triangulation_keyframes).
+        former_bearing = ~np.isnan(self.local_map.anchors[matched_map, 3])
+        is_keyframe = self._needs_keyframe(pose, int((inliers & ~former_bearing).sum()))
         t_kf = time.perf_counter()
         if is_keyframe:
             pose = self._insert_keyframe(pose, frame, matched_frame[inliers], tracked_ids)
@@ -788,7 +791,7 @@ class VisualOdometry:
                 found &= bearing >= 0
                 if found.any():
                     self.local_map.points[rows[found]] = result.points[found]
-                    self.local_map.anchors[rows[found]] = np.nan
+                    self.local_map.anchors[rows[found], :3] = np.nan
                     self.local_map.last_seen[rows[found]] = self.frames
                     self.local_map.merge(ids[found], bearing[found])
                     ids = np.where(found, bearing, ids)
@@ -859,7 +862,7 @@ class VisualOdometry:
             anchors[point_rows[bearing], 3] = np.minimum(anchors[point_rows[bearing], 3], std)
             # As well placed as a point triangulated from two rays min_parallax_deg apart: an ordinary landmark.
             placed = std * distance <= self._triangulated_spread()
-            anchors[point_rows[bearing[placed]]] = np.nan
+            anchors[point_rows[bearing[placed]], :3] = np.nan
         measured = np.unique(point_index[(depths > 0) & result.inliers])
         anchors[point_rows[measured]] = np.nan
         for kf, T_cw in zip(window, result.poses, strict=True):
