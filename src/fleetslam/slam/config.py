@@ -216,7 +216,7 @@ class OdometryConfig(ConfigModel):
     1.44/1.44/2.33/1.52 cm (loop_revisit) by default: survey 3.48/3.38/3.99/2.22, figure eight 2.79/3.53/3.14/5.42,
     loop_revisit 1.15/1.26/1.83/1.74 cm (6 cells better, 6 worse; 6 within 3 cm instead of 9). The landmarks
     placed from bearings are not counted by the keyframe rules (counted, fewer keyframes were made and fewer loops
-    closed, as with ``triangulation_keyframes``). Nine other designs were worse (docs/slam.md, "Far features as
+    closed, as with ``triangulation_keyframes``). The other designs tried were worse (docs/slam.md, "Far features as
     bearings")."""
     bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
     """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
