@@ -142,3 +142,31 @@ def test_landmarks_are_fused_only_where_no_wheel_prior_ties_the_window(textures:
     # Fused, the track is as accurate as the pair test's.
     error = np.linalg.inv(motions[-1]) @ hand_held_poses[-1]
     assert np.linalg.norm(error[:3, 3]) < 0.010
+
+
+def test_a_bearing_is_fused_only_where_its_keypoint_is_the_clearly_closest_descriptor_around() -> None:
+    """A bearing's distance is a guess: the keypoint at its projection may repeat the texture of the one it is. With
+    ``distinct`` it is fused only where no other keypoint within the radius has a descriptor nearly as close."""
+    rng = np.random.default_rng(3)
+    view, points, descriptors = _view(rng)
+    keypoints = view.keypoints.copy()
+    # Keypoint 1 moved 15 px beside keypoint 0 with keypoint 0's descriptor: a repeat of its texture.
+    keypoints[1] = keypoints[0] + [15.0, 0.0]
+    view_descriptors = view.descriptors.copy()
+    view_descriptors[1] = view_descriptors[0]
+    no_landmark = View(view.T_world_camera, keypoints, view_descriptors, view.scales, np.zeros(50),
+                       np.full(50, -1, np.int64))  # fmt: skip
+    ids = np.arange(3, dtype=np.int64)
+    observed = flip_bits(rng, descriptors[:3], 2)
+
+    def fuse(distinct: np.ndarray | None, radius: float) -> list[int]:
+        fusion = fuse_into_view(no_landmark, ids, points[:3], observed, K, **OPTIONS, distinct=distinct,
+                                distinct_radius=radius, distinct_ratio=0.7)  # fmt: skip
+        return sorted(fusion.observed_ids.tolist())
+
+    # Landmark 1's keypoint moved away: it is fused with none.
+    assert fuse(None, 0.0) == [0, 2]
+    bearing = np.array([True, True, False])
+    # Landmark 0 has a rival 15 px away: not fused within 20 px, fused within 10; landmark 2 is not a bearing.
+    assert fuse(bearing, 20.0) == [2]
+    assert fuse(bearing, 10.0) == [0, 2]

@@ -245,3 +245,25 @@ def test_a_bearing_merged_with_a_measured_landmark_takes_its_position() -> None:
     assert np.isnan(local_map.anchors[rows[2]]).all()
     np.testing.assert_array_equal(local_map.points[rows[3]], [1.0, 0.0, 12.0])
     assert not np.isnan(local_map.anchors[rows[3]]).any()
+
+
+def test_keypoints_next_to_measured_depth_do_not_become_bearings(textures: list[np.ndarray]) -> None:
+    """A keypoint without depth within ``bearing_edge_radius`` pixels of one with depth sits on a hole or a nearer
+    surface's border, not beyond the range: it does not become a bearing (the others still do)."""
+    rgb, depth = render(BASE, INTRINSICS, textures)
+    edge = INTRINSICS.height // 2
+    depth[:edge] = 0.0  # the upper half beyond the depth camera's range
+
+    def bearing_rows(radius: int) -> np.ndarray:
+        vo = VisualOdometry(OdometryConfig(far_landmarks=True, bearing_edge_radius=radius), INTRINSICS)
+        vo.track(rgb, depth, 0.0)
+        vo.local_mapping()
+        keyframe = vo.window[-1]
+        rows, found = vo.local_map.rows(keyframe.landmarks)
+        anchored = found & ~np.isnan(vo.local_map.anchors[rows, 0])
+        return keyframe.pixels[anchored, 1]
+
+    every = bearing_rows(0)
+    assert len(every) > 50 and np.any(every > edge - 6)
+    kept = bearing_rows(6)
+    assert len(kept) > 50 and np.all(np.rint(kept) < edge - 6)

@@ -223,6 +223,23 @@ class OdometryConfig(ConfigModel):
     1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),
     it held the distances of points 5-8 m away at 12 m and the parallax they lacked turned the heading instead
     (survey at 15 Hz, odometry alone: 6.2 → 9.0 cm); 0.5 let the parallax decide (3.2 cm; 2: 4.4 cm)."""
+    bearing_edge_radius: int = Field(default=0, ge=0)
+    """A keypoint without depth becomes a bearing (``far_landmarks``) only where no pixel within this many of it has
+    a depth either: a hole at a nearer surface's border (the sensor drops both sides of a depth edge) is not a
+    point beyond the range. 0: every keypoint without depth."""
+    bearing_fusion_radius: float = Field(default=0.0, ge=0.0)
+    """Pixels around a bearing's projection (``far_landmarks``) within which the keypoint landmark fusion gives it
+    must be the clearly closest descriptor (``bearing_fusion_ratio``): its distance is a guess, so the keypoint at
+    its projection may repeat the texture of the one it is. 0: no such test."""
+    bearing_fusion_ratio: float = Field(default=0.8, gt=0.0, le=1.0)
+    """Ratio of the best to the second-best descriptor distance within ``bearing_fusion_radius``."""
+    bearing_near_sigmas: float = Field(default=0.0, ge=0.0)
+    """A bearing (``far_landmarks``) stands for a point beyond the depth camera's range; where the window's
+    adjustment puts it nearer than ``bearing_near_distance`` by more than this many standard deviations of its
+    inverse distance, its depth was missing for another reason (an edge, a surface seen at a grazing angle, a wrong
+    match on repetitive texture) and it leaves the window and the local map. 0: never."""
+    bearing_near_distance: float = Field(default=0.0, ge=0.0)
+    """The distance (m) a bearing must not be confidently nearer than (``bearing_near_sigmas``); 0: ``max_depth``."""
     min_parallax_deg: float = Field(default=1.0, gt=0.0)
     """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
     triangulation_keyframes: int = Field(default=1, ge=1)

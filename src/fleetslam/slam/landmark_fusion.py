@@ -65,6 +65,9 @@ def fuse_into_view(
     pixel_std: float,
     depth_noise: float,
     min_depth: float,
+    distinct: NDArray[np.bool_] | None = None,
+    distinct_radius: float = 0.0,
+    distinct_ratio: float = 1.0,
 ) -> Fusion:
     """Project the landmarks ``ids`` (world ``points``, ``descriptors``) into ``view`` and pair each with the keypoint
     it falls on: within the χ² gate of reprojection (σ ``pixel_std`` × the keypoint's scale) and, where the keypoint
@@ -113,6 +116,9 @@ def fuse_into_view(
     first = np.ones(len(order), bool)
     first[1:] = projected[order][1:] != projected[order][:-1]
     best = order[first]
+    if distinct is not None and distinct_radius > 0 and len(best):
+        best = best[_distinctive(view, descriptors, uv, candidates, projected[best], keypoint[best], distance[best],
+                                 distinct, distinct_radius, distinct_ratio)]  # fmt: skip
     index, landmark = keypoint[best], ids[candidates[projected[best]]].astype(np.int64)
     # Per keypoint, its closest landmark first.
     order = np.lexsort((distance[best], index))
@@ -125,6 +131,41 @@ def fuse_into_view(
     pair = (own >= 0) | ~lead
     new = (own < 0) & lead
     return Fusion(np.stack([head[pair], landmark[pair]], axis=1).astype(np.int64), index[new], landmark[new])
+
+
+def _distinctive(
+    view: View,
+    descriptors: NDArray[Any],
+    uv: NDArray[np.float64],
+    candidates: NDArray[np.intp],
+    projected: NDArray[np.intp],
+    keypoint: NDArray[np.intp],
+    distance: NDArray[np.float64],
+    distinct: NDArray[np.bool_],
+    radius: float,
+    ratio: float,
+) -> NDArray[np.bool_]:
+    """Which pairs pass the ratio test against every other keypoint within ``radius`` of the projection (for the
+    landmarks ``distinct`` flags: their position is a guess, so the keypoint in the gate may be a repeat of the
+    texture while the true one lies elsewhere)."""
+    keep = np.ones(len(projected), bool)
+    flagged = np.flatnonzero(distinct[candidates[projected]])
+    if len(flagged) == 0:
+        return keep
+    tree = cKDTree(np.asarray(view.keypoints, np.float64))
+    neighbours = tree.query_ball_point(uv[projected[flagged]], radius)
+    sizes = np.array([len(n) for n in neighbours], np.intp)
+    if sizes.sum() == 0:
+        return keep
+    owner = np.repeat(np.arange(len(flagged)), sizes)
+    other = np.concatenate([np.asarray(n, np.intp) for n in neighbours])
+    rival = other != keypoint[flagged][owner]
+    owner, other = owner[rival], other[rival]
+    d = pair_distances(view.descriptors, descriptors, other, candidates[projected[flagged]][owner])
+    second = np.full(len(flagged), np.inf)
+    np.minimum.at(second, owner, d)
+    keep[flagged] = distance[flagged] < ratio * second
+    return keep
 
 
 def merge_plan(

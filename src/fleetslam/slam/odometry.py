@@ -273,6 +273,8 @@ class VisualOdometry:
         """The newest keyframe's keypoints, for the landmark fusion that precedes the window's adjustment."""
         self.fused_landmarks = 0
         """Landmarks merged into another since the start (``fuse_landmarks``)."""
+        self.near_bearings = 0
+        """Bearings dropped as within the depth camera's range since the start (``bearing_near_sigmas``)."""
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
         self._photometric_level = pyramid_level(intrinsics.width)
         self._photometric_block = (
@@ -574,8 +576,10 @@ class VisualOdometry:
         far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
         bearing_ids = np.full(len(leftover), -1, np.int64)
         if self._far_landmarks(frame):
-            bearing_ids = self._bearing_landmarks(pose, frame, leftover)
-            far_index, far_ids = np.concatenate([far_index, leftover]), np.concatenate([far_ids, bearing_ids])
+            beyond = leftover[self._beyond_range(frame, leftover)]
+            made = self._bearing_landmarks(pose, frame, beyond)
+            bearing_ids[np.isin(leftover, beyond)] = made
+            far_index, far_ids = np.concatenate([far_index, beyond]), np.concatenate([far_ids, made])
         observed = np.concatenate([tracked, new_index, far_index])
         if len(self.window) == self.window.maxlen and self.config.window_fixed_keyframes:
             self._retired.append(self.window[0])
@@ -633,6 +637,28 @@ class VisualOdometry:
         anchor = np.append(pose[:3, 3], std)
         return self.local_map.add(world, frame.features.descriptors[index], self.frames, anchor=anchor)
 
+    def _beyond_range(self, frame: _Frame, index: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Which of the keypoints ``index`` (no depth) have no measured depth within ``bearing_edge_radius`` pixels
+        either: their depth is missing because they lie beyond the sensor's range, not because they sit on a depth
+        edge (a nearer surface's border) or in a small hole."""
+        r = self.config.bearing_edge_radius
+        if r <= 0 or len(index) == 0:
+            return np.ones(len(index), bool)
+        valid = (frame.depth > 0).astype(np.uint8)
+        near = import_cv2().dilate(valid, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        pixels = np.rint(frame.features.keypoints[index]).astype(np.intp)
+        h, w = near.shape
+        return ~near[np.clip(pixels[:, 1], 0, h - 1), np.clip(pixels[:, 0], 0, w - 1)]
+
+    def _near_bearings(self, distance: NDArray[np.float64], std: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which bearings the adjustment puts confidently within the depth camera's range (``bearing_near_sigmas``):
+        1/d − k·σ_ρ > 1/range."""
+        k = self.config.bearing_near_sigmas
+        if k <= 0:
+            return np.zeros(len(distance), bool)
+        near = self.config.bearing_near_distance or self.config.max_depth
+        return 1.0 / distance - k * std > 1.0 / near
+
     def _triangulated_spread(self) -> float:
         """Relative standard deviation of the distance of a point triangulated from two rays ``min_parallax_deg``
         apart, each off by ``pixel_std``: √2·(σ/f)/α."""
@@ -687,8 +713,12 @@ class VisualOdometry:
         landmarks[pending.observed] = keyframe.landmarks[: len(pending.observed)]
         view = View(keyframe.pose, feats.keypoints.astype(np.float64), feats.descriptors,
                     feats.scales.astype(np.float64), pending.depths, landmarks)  # fmt: skip
+        distinct = None
+        if self.config.bearing_fusion_radius > 0:
+            distinct = ~np.isnan(local_map.anchors[:, 0])
         forward = fuse_into_view(
-            view, local_map.ids, local_map.points, local_map.descriptors, self._K, **options
+            view, local_map.ids, local_map.points, local_map.descriptors, self._K, **options, distinct=distinct,
+            distinct_radius=self.config.bearing_fusion_radius, distinct_ratio=self.config.bearing_fusion_ratio,
         )  # fmt: skip
         if len(forward.observed_index):
             # Keypoints of the new keyframe that had no landmark observe the one projected onto them.
@@ -860,9 +890,13 @@ class VisualOdometry:
             covariance = np.linalg.inv(result.point_hessian[bearing] + 1e-9 * np.eye(3))
             std = np.sqrt(np.maximum(np.einsum("pi,pij,pj->p", ray, covariance, ray), 0.0)) / distance**2
             anchors[point_rows[bearing], 3] = np.minimum(anchors[point_rows[bearing], 3], std)
+            near = self._near_bearings(distance, std)
+            rejected = landmark_ids[bearing[near]]
             # As well placed as a point triangulated from two rays min_parallax_deg apart: an ordinary landmark.
-            placed = std * distance <= self._triangulated_spread()
+            placed = (std * distance <= self._triangulated_spread()) & ~near
             anchors[point_rows[bearing[placed]], :3] = np.nan
+        else:
+            rejected = np.zeros(0, np.int64)
         measured = np.unique(point_index[(depths > 0) & result.inliers])
         anchors[point_rows[measured]] = np.nan
         for kf, T_cw in zip(window, result.poses, strict=True):
@@ -870,6 +904,13 @@ class VisualOdometry:
         # Observations the adjustment found to be wrong matches leave the window.
         bad = np.zeros(len(ids), bool)
         bad[np.flatnonzero(shared)[~result.inliers]] = True
+        if len(rejected):
+            bad |= np.isin(ids, rejected)
+            rows, found = self.local_map.rows(rejected)
+            keep = np.ones(len(self.local_map), bool)
+            keep[rows[found]] = False
+            self.local_map._keep(np.flatnonzero(keep))
+            self.near_bearings += int(found.sum())
         start = 0
         for kf in window:
             stop = start + len(kf.landmarks)
