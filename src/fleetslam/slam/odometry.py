@@ -273,8 +273,6 @@ class VisualOdometry:
         """The newest keyframe's keypoints, for the landmark fusion that precedes the window's adjustment."""
         self.fused_landmarks = 0
         """Landmarks merged into another since the start (``fuse_landmarks``)."""
-        self.near_bearings = 0
-        """Bearings dropped as within the depth camera's range since the start (``bearing_near_sigmas``)."""
         self._surface_stride = sample_stride(intrinsics, config.surface_samples) if config.surface_samples > 0 else 0
         self._photometric_level = pyramid_level(intrinsics.width)
         self._photometric_block = (
@@ -576,10 +574,11 @@ class VisualOdometry:
         far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
         bearing_ids = np.full(len(leftover), -1, np.int64)
         if self._far_landmarks(frame):
-            beyond = leftover[self._beyond_range(frame, leftover)]
-            made = self._bearing_landmarks(pose, frame, beyond)
-            bearing_ids[np.isin(leftover, beyond)] = made
-            far_index, far_ids = np.concatenate([far_index, beyond]), np.concatenate([far_ids, made])
+            # Keypoints beside a measured depth (bearing_edge_radius) stay triangulation candidates only.
+            beyond = self._beyond_range(frame, leftover)
+            bearing_ids[beyond] = self._bearing_landmarks(pose, frame, leftover[beyond])
+            far_index = np.concatenate([far_index, leftover[beyond]])
+            far_ids = np.concatenate([far_ids, bearing_ids[beyond]])
         observed = np.concatenate([tracked, new_index, far_index])
         if len(self.window) == self.window.maxlen and self.config.window_fixed_keyframes:
             self._retired.append(self.window[0])
@@ -649,15 +648,6 @@ class VisualOdometry:
         pixels = np.rint(frame.features.keypoints[index]).astype(np.intp)
         h, w = near.shape
         return ~near[np.clip(pixels[:, 1], 0, h - 1), np.clip(pixels[:, 0], 0, w - 1)]
-
-    def _near_bearings(self, distance: NDArray[np.float64], std: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """Which bearings the adjustment puts confidently within the depth camera's range (``bearing_near_sigmas``):
-        1/d − k·σ_ρ > 1/range."""
-        k = self.config.bearing_near_sigmas
-        if k <= 0:
-            return np.zeros(len(distance), bool)
-        near = self.config.bearing_near_distance or self.config.max_depth
-        return 1.0 / distance - k * std > 1.0 / near
 
     def _triangulated_spread(self) -> float:
         """Relative standard deviation of the distance of a point triangulated from two rays ``min_parallax_deg``
@@ -890,13 +880,9 @@ class VisualOdometry:
             covariance = np.linalg.inv(result.point_hessian[bearing] + 1e-9 * np.eye(3))
             std = np.sqrt(np.maximum(np.einsum("pi,pij,pj->p", ray, covariance, ray), 0.0)) / distance**2
             anchors[point_rows[bearing], 3] = np.minimum(anchors[point_rows[bearing], 3], std)
-            near = self._near_bearings(distance, std)
-            rejected = landmark_ids[bearing[near]]
             # As well placed as a point triangulated from two rays min_parallax_deg apart: an ordinary landmark.
-            placed = (std * distance <= self._triangulated_spread()) & ~near
+            placed = std * distance <= self._triangulated_spread()
             anchors[point_rows[bearing[placed]], :3] = np.nan
-        else:
-            rejected = np.zeros(0, np.int64)
         measured = np.unique(point_index[(depths > 0) & result.inliers])
         anchors[point_rows[measured]] = np.nan
         for kf, T_cw in zip(window, result.poses, strict=True):
@@ -904,13 +890,6 @@ class VisualOdometry:
         # Observations the adjustment found to be wrong matches leave the window.
         bad = np.zeros(len(ids), bool)
         bad[np.flatnonzero(shared)[~result.inliers]] = True
-        if len(rejected):
-            bad |= np.isin(ids, rejected)
-            rows, found = self.local_map.rows(rejected)
-            keep = np.ones(len(self.local_map), bool)
-            keep[rows[found]] = False
-            self.local_map._keep(np.flatnonzero(keep))
-            self.near_bearings += int(found.sum())
         start = 0
         for kf in window:
             stop = start + len(kf.landmarks)
