@@ -217,7 +217,7 @@ class OdometryConfig(ConfigModel):
     loop_revisit 1.15/1.26/1.83/1.74 cm (6 cells better, 6 worse; 6 within 3 cm instead of 9). The landmarks
     placed from bearings are not counted by the keyframe rules (counted, fewer keyframes were made and fewer loops
     closed, as with ``triangulation_keyframes``). The other designs tried were worse (docs/slam.md, "Far features as
-    bearings")."""
+    bearings"). Guards against its wrong bearings: ``bearing_edge_radius``, ``bearing_fusion_radius``."""
     bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
     """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
     1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),
