@@ -197,7 +197,7 @@ def run_demo(
             monitor.close()
             elapsed = time.monotonic() - start
     with monitor.lock:
-        rows = monitor.table.rows()
+        rows = monitor.table.totals()
     result = DemoResult(out_dir, elapsed, rows, monitor.history, processes=usage)
     if mode == "sim":
         live = {key.replace("/slam", "/live"): track for key, track in monitor.trajectories().items()}

@@ -28,6 +28,8 @@ class DemoResult:
     out_dir: Path
     duration_s: float
     rows: list[StatsRow]
+    """Per topic, publisher and subscriber, every statistics window of the run summed
+    (:meth:`~fleetslam.middleware.stats_table.StatsTable.totals`)."""
     history: list[dict[str, Any]] = field(default_factory=list)
     ate: dict[str, float] = field(default_factory=dict)
     """ATE RMSE (m) per robot: its SLAM trajectory as the run ended (``slam/trajectory``: every processed frame on its
@@ -124,7 +126,8 @@ STYLE = (
 
 
 def statistics_table(rows: Sequence[StatsRow]) -> Table:
-    """The latest statistics window per topic and subscriber."""
+    """Per topic and subscriber, its statistics (in a demo's report, over the run:
+    :meth:`~fleetslam.middleware.stats_table.StatsTable.totals`)."""
     columns = ("agent", "topic", "publisher → subscriber", "kB/s", "Hz", "delivered", "dropped", "age ms (mean ± std)")
     return Table(columns, (False, False, False, True, True, True, True, True), [
         [r.agent, r.topic, f"{r.node_pub} → {r.node_sub}", f"{r.bandwidth_bps / 1e3:.1f}", f"{r.rate_hz:.1f}",
@@ -347,7 +350,11 @@ def build_report(result: DemoResult, figures: Sequence[Path | None] = ()) -> Rep
                 process_section(result.processes), agents_section(result)]  # fmt: skip
     return Report(
         title="fleetslam demo report",
-        intro=f"Run of {result.duration_s:.0f} s. Latest statistics window per topic and subscriber:",
+        intro=(
+            f"Run of {result.duration_s:.0f} s. Per topic and subscriber, over the run (every statistics window "
+            "it reported; kB/s and Hz over the span from its first window to its last; age pooled over the "
+            "messages):"
+        ),
         table=statistics_table(result.rows),
         sections=[s for s in sections if s is not None],
         figures=[Figure(plot.stem, plot.name) for plot in figures if plot is not None],

@@ -210,9 +210,9 @@ def serialize_payload(msg: object, type_name: str) -> bytes | bytearray:
     store = get_typestore()
     if type_name not in store.fielddefs:
         get_type(type_name)
-    plan = _splices.get(type_name, _NO_PLAN)
-    if plan is _NO_PLAN:
-        plan = _splices[type_name] = _splice_plan(type_name, store)
+    if type_name not in _splices:
+        _splices[type_name] = _splice_plan(type_name, store)
+    plan = _splices[type_name]
     if plan is not None:
         spliced = _serialize_spliced(msg, type_name, store, plan)
         if spliced is not None:
@@ -241,7 +241,6 @@ _BYTE_BASES = {
     "int8": np.dtype(np.int8),
 }
 _ONE_BYTE = {*_BYTE_BASES, "bool"}
-_NO_PLAN = ("", 0, np.dtype(np.uint8), np.empty(0, np.uint8), object)
 _splices: dict[str, tuple[str, int, Any, Any, type] | None] = {}
 """Per type: its splice plan (see :func:`_splice_plan`), or None for a type without one."""
 _pack_length = struct.Struct("<I").pack_into

@@ -38,6 +38,21 @@ class FeatureConfig(ConfigModel):
     """ORB's descriptor patch (pixels) on a 640-pixel-wide image; scaled down with smaller images, so that it
     covers the same part of the scene and features come as close to the border."""
 
+    subpixel_window: int = Field(default=0, ge=0)
+    """Sub-pixel keypoint positions (ORB): each kept keypoint moves to the corner that the image gradients in a
+    window around it define (:class:`~fleetslam.slam.features.SubpixelRefiner`); this is the window's half-size
+    in pixels on a 640-pixel-wide image (scaled with the image like ``orb_patch_size``, and by the pixel size of
+    the keypoint's pyramid level); a keypoint that would leave its window, or whose window holds an edge or a flat
+    patch rather than a corner, stays where ORB found it. 0: keypoints stay on their level's pixel grid.
+    Descriptors are computed where ORB found the keypoints either way. Measured with 10 (benchmarks/slam_matrix.py,
+    26 November 2026, ATE cm at 5/10/15/30 Hz, defaults → 10): procedural hall, hand-held, 320×240, loop_revisit
+    1.44/1.44/2.33/1.52 → 1.84/1.71/1.57/1.70, survey 2.74/3.52/4.72/2.88 → 2.57/2.34/4.74/2.79, figure eight
+    1.95/1.97/2.15/4.92 → 1.74/1.99/1.87/2.60 (11 of 12 cells within 3 cm instead of 9); ground, 320×240, all within
+    2 cm (0.56–1.58, 10 of 12 better); but the photographic hall (never used for tuning), hand-held, 320×240:
+    loop_revisit 1.61/1.49/1.47/1.50 → 1.25/1.34/1.06/0.84, survey 2.32/1.64/1.74/1.63 → 3.17/2.56/1.52/1.84,
+    figure eight 0.98/1.24/0.89/1.25 → 1.02/0.95/0.83/4.01 (two cells over 3 cm); 640×480 survey at 5 Hz,
+    hand-held, 1.33 → 1.47 cm and tracking 11.5–12.1 → 15.5 ms per frame. Hence not the default."""
+
 
 class OdometryConfig(ConfigModel):
     """The odometry front-end; the other fields configure the ``visual`` one, frame-to-local-map visual odometry

@@ -246,7 +246,14 @@ class VisualOdometry:
         # full-size patch would only blur the descriptor and keep features a patch away from the border.
         patch = max(15, round(fc.orb_patch_size * min(self._pixel_scale, 1.0)))
         self.extractor = FeatureExtractor(
-            fc.kind, fc.max_features, fc.grid_rows, fc.grid_cols, fc.orb_fast_threshold, fc.orb_levels, patch
+            fc.kind,
+            fc.max_features,
+            fc.grid_rows,
+            fc.grid_cols,
+            fc.orb_fast_threshold,
+            fc.orb_levels,
+            patch,
+            subpixel_window=max(1, round(fc.subpixel_window * self._pixel_scale)) if fc.subpixel_window else 0,
         )
         self._K = intrinsics.K
         self.local_map = LocalMap(config.local_map_size)
@@ -269,6 +276,7 @@ class VisualOdometry:
         """Keypoints without depth of the window's keyframes, oldest first, waiting to be triangulated."""
         self._lost_frames = 0
         self._adjustment_pending = False
+        self._insertion_pending: _InsertionPending | None = None
         self._fusion_pending: _FusionPending | None = None
         """The newest keyframe's keypoints, for the landmark fusion that precedes the window's adjustment."""
         self.fused_landmarks = 0
@@ -367,10 +375,10 @@ class VisualOdometry:
         # have made without them (more tracked, fewer keyframes, fewer loops closed: triangulation_keyframes).
         former_bearing = ~np.isnan(self.local_map.anchors[matched_map, 3])
         is_keyframe = self._needs_keyframe(pose, int((inliers & ~former_bearing).sum()))
-        t_kf = time.perf_counter()
         if is_keyframe:
-            pose = self._insert_keyframe(pose, frame, matched_frame[inliers], tracked_ids)
-        timings["keyframe"] = (time.perf_counter() - t_kf) * 1e3
+            # Making the keyframe (its new landmarks, the triangulation, its surface) is local mapping's work, as
+            # in ORB-SLAM: the frame's pose goes out first (local_mapping(), or the next track(), makes it).
+            self._insertion_pending = _InsertionPending(pose.copy(), frame, matched_frame[inliers], tracked_ids)
         return self._finish(pose, int(inliers.sum()), len(matched_frame), is_keyframe, False, frame, timings, t0)
 
     # -- tracking -----------------------------------------------------------------------------------------------
@@ -560,10 +568,9 @@ class VisualOdometry:
 
     def _insert_keyframe(
         self, pose: NDArray[np.float64], frame: _Frame, tracked: NDArray[np.intp], tracked_ids: NDArray[np.int64]
-    ) -> NDArray[np.float64]:
+    ) -> None:
         """Add the frame's new landmarks (measured depth, and triangulated with the last keyframe where the depth
-        camera saw nothing) and the frame to the window, bundle-adjust the window; returns the frame's adjusted
-        pose."""
+        camera saw nothing) and the frame to the window, and mark the window's adjustment pending."""
         new = frame.valid.copy()
         new[tracked] = False
         new_index = np.flatnonzero(new)
@@ -606,7 +613,6 @@ class VisualOdometry:
         self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
         self._keyframe_tracked = int(frame.valid.sum())
-        return pose
 
     def _far_landmarks(self, frame: _Frame) -> bool:
         """Whether the keyframe's keypoints without depth become landmarks at once (``far_landmarks``): not where
@@ -663,10 +669,14 @@ class VisualOdometry:
         return 0.5 / self.config.max_depth, self.config.bearing_inverse_depth_std
 
     def local_mapping(self) -> NDArray[np.float64] | None:
-        """Bundle-adjust the window after a new keyframe (ORB-SLAM's local mapping: the keyframe's pose is
-        published first, the adjustment follows before the next frame is tracked); returns the keyframe's
-        adjusted pose, or None when nothing was pending. :meth:`track` runs a pending adjustment itself first, so
-        the results are the same whether or not the caller runs it in between."""
+        """Make the new keyframe (its landmarks, the triangulation, its surface) and bundle-adjust the window
+        (ORB-SLAM's local mapping: the keyframe's pose is published first, this follows before the next frame is
+        tracked); returns the keyframe's adjusted pose, or None when no adjustment was pending. :meth:`track` runs
+        pending local mapping itself first, so the results are the same whether or not the caller runs it in
+        between."""
+        insertion, self._insertion_pending = self._insertion_pending, None
+        if insertion is not None:
+            self._insert_keyframe(insertion.pose, insertion.frame, insertion.tracked, insertion.tracked_ids)
         if not self._adjustment_pending:
             return None
         self._adjustment_pending = False
@@ -987,7 +997,7 @@ class VisualOdometry:
         self._coasted = 0.0
         self._lost_frames = 0
         self._keyframe_pose = None
-        pose = self._insert_keyframe(pose, frame, np.zeros(0, np.intp), np.zeros(0, np.int64))
+        self._insert_keyframe(pose, frame, np.zeros(0, np.intp), np.zeros(0, np.int64))
         result = self._finish(pose, 0, 0, True, lost, frame, timings, t0, coasting=coasting)
         result.map_restarted = True
         return result
@@ -996,6 +1006,7 @@ class VisualOdometry:
         """Put a lost frame back on the map at ``pose`` (found by the loop-closure side) and restart tracking
         from it: the local map is re-seeded with this frame's points at the corrected pose."""
         self._adjustment_pending = False  # the window it would adjust is dropped
+        self._insertion_pending = None
         self.pose = self.constrain(np.asarray(pose, np.float64)).copy()
         self._velocity = np.eye(4)
         self.local_map.clear()
@@ -1086,6 +1097,18 @@ class _Candidates:
         keep[rows] = False
         self.pixels, self.descriptors, self.scales = self.pixels[keep], self.descriptors[keep], self.scales[keep]
         self.bearings = self.bearings[keep]
+
+
+@dataclass
+class _InsertionPending:
+    """A frame that becomes a keyframe, waiting for local mapping to add it to the map and the window."""
+
+    pose: NDArray[np.float64]
+    frame: _Frame
+    tracked: NDArray[np.intp]
+    """Its keypoints that tracked a landmark."""
+    tracked_ids: NDArray[np.int64]
+    """Those landmarks."""
 
 
 @dataclass
