@@ -152,20 +152,70 @@ def _distinctive(
     flagged = np.flatnonzero(distinct[candidates[projected]])
     if len(flagged) == 0:
         return keep
-    tree = cKDTree(np.asarray(view.keypoints, np.float64))
-    neighbours = tree.query_ball_point(uv[projected[flagged]], radius)
-    sizes = np.array([len(n) for n in neighbours], np.intp)
-    if sizes.sum() == 0:
-        return keep
-    owner = np.repeat(np.arange(len(flagged)), sizes)
-    other = np.concatenate([np.asarray(n, np.intp) for n in neighbours])
-    rival = other != keypoint[flagged][owner]
-    owner, other = owner[rival], other[rival]
-    d = pair_distances(view.descriptors, descriptors, other, candidates[projected[flagged]][owner])
-    second = np.full(len(flagged), np.inf)
-    np.minimum.at(second, owner, d)
+    second = _closest_rival(view.keypoints, view.descriptors, uv[projected[flagged]],
+                            descriptors[candidates[projected[flagged]]], keypoint[flagged], radius)  # fmt: skip
     keep[flagged] = distance[flagged] < ratio * second
     return keep
+
+
+def _closest_rival(
+    keypoints: NDArray[np.float64],
+    keypoint_descriptors: NDArray[Any],
+    queries: NDArray[np.float64],
+    query_descriptors: NDArray[Any],
+    own: NDArray[np.intp],
+    radius: float,
+) -> NDArray[np.float64]:
+    """Per query (a pixel and a descriptor), the smallest descriptor distance to a keypoint within ``radius``
+    (squared pixel distance ≤ radius², as ``cKDTree.query_ball_point``) other than its ``own``; inf where none.
+
+    The queries are bucketed on a grid of cells ``radius`` wide, and each cell's queries are compared at once, as
+    a block of pixel and descriptor distances, with the keypoints around it (those of the 3 × 3 cells): on the
+    hand-held figure eight at 320 × 240 (~1000 bearings, half the keypoints within 80 px of each), a ball query
+    per bearing and a descriptor distance per neighbour cost a median 31 ms a keyframe (up to 170), this 4.5 ms
+    (up to 17), with the same result."""
+    keypoints = np.asarray(keypoints, np.float64)
+    second = np.full(len(queries), np.inf)
+    if len(queries) == 0 or len(keypoints) == 0:
+        return second
+    packed = _packed(keypoint_descriptors), _packed(query_descriptors)
+    bound = radius * radius
+    # Only to pick the keypoints worth testing: the test itself is the exact one, so rounding at a cell's edge
+    # cannot drop a neighbour (the margin keeps any keypoint the exact test would take).
+    margin = radius + 1e-6 * (radius + float(np.abs(keypoints).max()) + float(np.abs(queries).max()))
+    cells = np.floor(queries / max(radius, 1e-9)).astype(np.int64)
+    _, group = np.unique(cells, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    order = np.argsort(group, kind="stable")
+    bounds = np.flatnonzero(np.diff(group[order])) + 1
+    for rows in np.split(order, bounds):
+        low, high = queries[rows].min(axis=0) - margin, queries[rows].max(axis=0) + margin
+        cols = np.flatnonzero(np.all((keypoints >= low) & (keypoints <= high), axis=1))
+        if len(cols) == 0:
+            continue
+        dx = queries[rows, 0][:, None] - keypoints[cols, 0][None, :]
+        dy = queries[rows, 1][:, None] - keypoints[cols, 1][None, :]
+        near = dx * dx + dy * dy <= bound
+        near &= cols[None, :] != own[rows][:, None]
+        if packed[0] is not None and packed[1] is not None:
+            # One popcount per 64-bit word over the whole block (a word at a time: broadcasting the words' axis
+            # too is several times slower).
+            table = np.zeros(near.shape, np.uint32)
+            for word in range(packed[0].shape[1]):
+                table += np.bitwise_count(packed[1][rows, word][:, None] ^ packed[0][cols, word][None, :])
+            second[rows] = np.where(near, table.astype(np.float64), np.inf).min(axis=1)
+        else:
+            i, j = np.nonzero(near)
+            d = pair_distances(keypoint_descriptors, query_descriptors, cols[j], rows[i])
+            np.minimum.at(second, rows[i], d)
+    return second
+
+
+def _packed(descriptors: NDArray[Any]) -> NDArray[np.uint64] | None:
+    """Binary descriptors as 64-bit words (the Hamming distance over 8 bytes in one popcount), None for others."""
+    if descriptors.dtype != np.uint8 or descriptors.ndim != 2 or descriptors.shape[1] % 8:
+        return None
+    return np.ascontiguousarray(descriptors).view(np.uint64)
 
 
 def merge_plan(
