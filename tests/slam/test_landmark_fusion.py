@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from fleetslam.geometry import pose_from_xyz_rpy
 from fleetslam.slam.config import OdometryConfig
-from fleetslam.slam.landmark_fusion import View, fuse_into_view, merge_plan
+from fleetslam.slam.landmark_fusion import View, _closest_rival, fuse_into_view, merge_plan
+from fleetslam.slam.matching import pair_distances
 from fleetslam.slam.odometry import VisualOdometry
 
 from .loop_scene import flip_bits, random_descriptors
@@ -142,3 +144,81 @@ def test_landmarks_are_fused_only_where_no_wheel_prior_ties_the_window(textures:
     # Fused, the track is as accurate as the pair test's.
     error = np.linalg.inv(motions[-1]) @ hand_held_poses[-1]
     assert np.linalg.norm(error[:3, 3]) < 0.010
+
+
+def test_a_bearing_is_fused_only_where_its_keypoint_is_the_clearly_closest_descriptor_around() -> None:
+    """A bearing's distance is a guess: the keypoint at its projection may repeat the texture of the one it is. With
+    ``distinct`` it is fused only where no other keypoint within the radius has a descriptor nearly as close."""
+    rng = np.random.default_rng(3)
+    view, points, descriptors = _view(rng)
+    keypoints = view.keypoints.copy()
+    # Keypoint 1 moved 15 px beside keypoint 0 with keypoint 0's descriptor: a repeat of its texture.
+    keypoints[1] = keypoints[0] + [15.0, 0.0]
+    view_descriptors = view.descriptors.copy()
+    view_descriptors[1] = view_descriptors[0]
+    no_landmark = View(view.T_world_camera, keypoints, view_descriptors, view.scales, np.zeros(50),
+                       np.full(50, -1, np.int64))  # fmt: skip
+    ids = np.arange(3, dtype=np.int64)
+    observed = flip_bits(rng, descriptors[:3], 2)
+
+    def fuse(distinct: np.ndarray | None, radius: float) -> list[int]:
+        fusion = fuse_into_view(no_landmark, ids, points[:3], observed, K, **OPTIONS, distinct=distinct,
+                                distinct_radius=radius, distinct_ratio=0.7)  # fmt: skip
+        return sorted(fusion.observed_ids.tolist())
+
+    # Landmark 1's keypoint moved away: it is fused with none.
+    assert fuse(None, 0.0) == [0, 2]
+    bearing = np.array([True, True, False])
+    # Landmark 0 has a rival 15 px away: not fused within 20 px, fused within 10; landmark 2 is not a bearing.
+    assert fuse(bearing, 20.0) == [2]
+    assert fuse(bearing, 10.0) == [0, 2]
+
+
+@pytest.mark.parametrize("kind", ["orb", "odd_width", "float"])
+def test_the_bearing_rival_search_takes_the_same_keypoints_as_a_brute_force_search(kind: str) -> None:
+    """The rivals of a bearing's keypoint are found on a grid; each query must see exactly the keypoints a check of
+    every keypoint takes (squared distance ≤ radius², as ``cKDTree.query_ball_point``), its own keypoint left out,
+    so the fused pairs stay the same to the digit. Keypoints at exactly the radius, on the grid's lines, repeated
+    spots and queries outside the image included."""
+    rng = np.random.default_rng(4)
+    radius = 50.0
+    keypoints = np.vstack([
+        rng.uniform(0.0, 320.0, (300, 2)),
+        rng.integers(0, 7, (40, 2)) * radius,  # on the grid's lines (repeats among them)
+        np.round(rng.uniform(0.0, 320.0, (40, 2))),
+    ])  # fmt: skip
+    queries = np.vstack([
+        rng.uniform(-60.0, 380.0, (150, 2)),
+        keypoints[300:380:2] + rng.choice([-1.0, 1.0], (40, 1)) * [[30.0, 40.0]],  # 3-4-5: exactly 50 px away
+        keypoints[301:380:2],  # on a keypoint
+    ])  # fmt: skip
+    own = rng.integers(-1, len(keypoints), len(queries))
+    if kind == "float":
+        keypoint_descriptors = rng.normal(0.0, 1.0, (len(keypoints), 16)).astype(np.float32)
+        query_descriptors = rng.normal(0.0, 1.0, (len(queries), 16)).astype(np.float32)
+    else:
+        width = 32 if kind == "orb" else 31
+        keypoint_descriptors = random_descriptors(rng, len(keypoints), width)
+        query_descriptors = random_descriptors(rng, len(queries), width)
+    # Half the queries carry their own keypoint's descriptor: were it not left out, it would be the closest.
+    copied = np.flatnonzero((own >= 0) & (np.arange(len(queries)) % 2 == 0))
+    query_descriptors[copied] = keypoint_descriptors[own[copied]]
+
+    fast = _closest_rival(keypoints, keypoint_descriptors, queries, query_descriptors, own, radius)
+
+    tree = cKDTree(keypoints)
+    reference = np.full(len(queries), np.inf)
+    sizes = []
+    for q, (x, y) in enumerate(queries.tolist()):
+        near = [
+            k for k, (u, v) in enumerate(keypoints.tolist()) if (x - u) * (x - u) + (y - v) * (y - v) <= radius * radius
+        ]
+        assert sorted(tree.query_ball_point(queries[q], radius)) == near
+        rivals = np.array([k for k in near if k != own[q]], np.intp)
+        sizes.append(len(rivals))
+        if len(rivals):
+            reference[q] = pair_distances(keypoint_descriptors, query_descriptors, rivals,
+                                          np.full(len(rivals), q, np.intp)).min()  # fmt: skip
+    # The data reach the cases that matter: queries without rivals, and ties at exactly the radius.
+    assert min(sizes) == 0 and max(sizes) > 10
+    assert np.array_equal(fast, reference)

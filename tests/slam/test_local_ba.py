@@ -137,3 +137,50 @@ def test_motion_only_refinement_leaves_the_points_alone() -> None:
     result = bundle_adjust(problem)
     np.testing.assert_array_equal(result.points, points)
     assert _position_errors(result.poses, truth)[0] < 0.002  # ~400 observations: sub-millimetre
+
+
+def _heading_errors(poses_cw: np.ndarray, truth_wc: list[np.ndarray]) -> np.ndarray:
+    return np.degrees([rotation_angle(invert(p) @ invert(t)) for p, t in zip(poses_cw, truth_wc, strict=True)])
+
+
+def test_far_points_without_depth_hold_the_heading_through_their_inverse_depth_prior() -> None:
+    rng = np.random.default_rng(4)
+    # A camera moving forward 8 cm per keyframe down a hall: a few measured points near it, many beyond the depth
+    # camera's range (6-15 m) that it sees without depth.
+    truth = [pose_from_xyz_rpy(0.0, 0.0, 0.08 * k, 0.0, 0.0, 0.0) for k in range(6)]
+    near = rng.uniform([-2.0, 0.5, 1.5], [2.0, 1.2, 3.0], (24, 3))
+    far = rng.uniform([-6.0, -2.0, 6.0], [6.0, 1.0, 15.0], (300, 3))
+    problem = _scene(rng, truth, np.vstack([near, far]), pixel_noise=1.0)
+    problem.depths[problem.obs_point >= len(near)] = 0.0
+    for k in range(1, 6):  # the heading off by 0.3° more per keyframe: what a random walk leaves
+        problem.poses[k] = pose_from_xyz_rpy(0.0, 0.0, 0.0, 0.0, np.radians(0.3 * k), 0.0) @ problem.poses[k]
+    # The far points start on their rays from the first keyframe, at the prior's mean distance (12 m).
+    mean, std = 1.0 / 12.0, 0.5
+    rays = far / np.linalg.norm(far, axis=1)[:, None]
+    problem.points = np.vstack([near, rays / mean])
+    anchors = np.full((len(problem.points), 3), np.nan)
+    anchors[len(near) :] = 0.0
+    with_prior = BundleProblem(**{**problem.__dict__, "point_anchors": anchors, "inverse_depth_prior": (mean, std)})
+    keep = problem.obs_point < len(near)
+    near_only = BundleProblem(
+        **{
+            **problem.__dict__,
+            "points": near,
+            "obs_pose": problem.obs_pose[keep],
+            "obs_point": problem.obs_point[keep],
+            "pixels": problem.pixels[keep],
+            "depths": problem.depths[keep],
+            "pixel_std": problem.pixel_std[keep],
+        }
+    )
+    held = bundle_adjust(with_prior)
+    alone = bundle_adjust(near_only)
+    # The bearings pin the heading (measured: 0.05° at most); the 24 near points alone leave it loose (1.8°).
+    assert _heading_errors(held.poses, truth).max() < 0.15
+    assert _heading_errors(alone.poses, truth).max() > 0.5
+    # Their distances move off the prior's 12 m towards where the parallax puts them, and each point's own block
+    # of the normal equations comes back (its inverse: the point's covariance, the poses held).
+    assert held.point_hessian.shape == (len(problem.points), 3, 3)
+    distances = np.linalg.norm(held.points[len(near) :], axis=1)
+    truth_distances = np.linalg.norm(far, axis=1)
+    assert np.median(np.abs(distances - truth_distances)) < np.median(np.abs(12.0 - truth_distances))

@@ -6,7 +6,7 @@ import pytest
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.geometry import invert, pose_from_xyz_rpy, rotation_angle
 from fleetslam.slam.config import OdometryConfig
-from fleetslam.slam.odometry import VisualOdometry
+from fleetslam.slam.odometry import LocalMap, VisualOdometry
 
 from .textured_room import make_textures, render
 
@@ -183,3 +183,88 @@ def test_the_fixed_keyframes_hold_the_window_only_where_no_wheel_prior_ties_it(t
     assert len(hand_held._retired) >= 2 and hand_held._needs_fixed_keyframes()
     plain = track(0, wheels=False)[1]
     assert any(not np.array_equal(a, b) for a, b in zip(hand_held_poses, plain, strict=True))
+
+
+def test_keypoints_without_depth_become_bearings_for_the_window_only_without_wheels(
+    textures: list[np.ndarray],
+) -> None:
+    """With ``far_landmarks`` a keyframe's keypoints beyond the depth camera's range become landmarks at once,
+    anchored (their distance the prior's); tracking never matches one whose distance is unknown, the window's
+    adjustment narrows it, and with the wheels none is made: the track is the one without, to the bit."""
+    motions = [pose_from_xyz_rpy(0.0, 0.0, 0.08 * k, 0.0, 0.0, 0.0) for k in range(6)]
+    frames = []
+    for motion in motions:
+        rgb, depth = render(BASE @ motion, INTRINSICS, textures)
+        depth[: INTRINSICS.height // 2] = 0.0  # the upper half beyond the depth camera's range
+        frames.append((rgb, depth))
+
+    def track(far: bool, wheels: bool) -> tuple[VisualOdometry, list[np.ndarray]]:
+        vo = VisualOdometry(OdometryConfig(far_landmarks=far, keyframe_translation=0.07), INTRINSICS)
+        poses = []
+        for k, ((rgb, depth), motion) in enumerate(zip(frames, motions, strict=True)):
+            result = vo.track(rgb, depth, 0.1 * k, prior=motion if wheels else None)
+            assert not result.lost
+            poses.append(result.pose)
+            vo.local_mapping()
+        return vo, poses
+
+    vo, poses = track(far=True, wheels=False)
+    anchored = ~np.isnan(vo.local_map.anchors[:, 0])
+    assert anchored.sum() > 100
+    # Each is anchored at the camera centre of the keyframe that made it (as it was then: the adjustment moves the
+    # keyframes by millimetres).
+    centres = np.stack([kf.pose[:3, 3] for kf in vo.window])
+    gap = np.linalg.norm(vo.local_map.anchors[anchored, None, :3] - centres[None], axis=2).min(axis=1)
+    assert np.all(gap < 0.01)
+    # The adjustment narrowed the distance of those the window saw twice: below the prior's deviation.
+    assert np.any(vo.local_map.anchors[anchored, 3] < vo.config.bearing_inverse_depth_std)
+    # The walls are 2-3 m away: the pose still follows the motion, to the pair test's bounds.
+    error = invert(motions[-1]) @ poses[-1]
+    assert np.linalg.norm(error[:3, 3]) < 0.010 and np.degrees(rotation_angle(error)) < 0.25
+
+    with_wheels, wheel_poses = track(far=True, wheels=True)
+    assert np.isnan(with_wheels.local_map.anchors[:, 0]).all()
+    for a, b in zip(wheel_poses, track(far=False, wheels=True)[1], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_bearing_merged_with_a_measured_landmark_takes_its_position() -> None:
+    """Fusion keeps the landmark with more observations; where that is a bearing (its distance a guess) and the
+    other was measured, the one kept takes the measured position and is a bearing no more."""
+    local_map = LocalMap(100)
+    descriptors = np.zeros((2, 32), np.uint8)
+    measured = local_map.add(np.array([[0.0, 0.0, 3.0], [1.0, 0.0, 3.0]]), descriptors)
+    bearings = local_map.add(
+        np.array([[0.0, 0.0, 12.0], [1.0, 0.0, 12.0]]), descriptors, anchor=np.array([0, 0, 0, 0.5])
+    )
+    other = local_map.add(np.array([[2.0, 0.0, 12.0]]), descriptors[:1], anchor=np.array([0, 0, 0, 0.5]))
+    local_map.merge(measured[:1], bearings[:1])  # a measured landmark into a bearing
+    local_map.merge(other, bearings[1:])  # a bearing into a bearing: still one
+    rows, found = local_map.rows(np.concatenate([measured, bearings, other]))
+    assert found.tolist() == [False, True, True, True, False]
+    np.testing.assert_array_equal(local_map.points[rows[2]], [0.0, 0.0, 3.0])
+    assert np.isnan(local_map.anchors[rows[2]]).all()
+    np.testing.assert_array_equal(local_map.points[rows[3]], [1.0, 0.0, 12.0])
+    assert not np.isnan(local_map.anchors[rows[3]]).any()
+
+
+def test_keypoints_next_to_measured_depth_do_not_become_bearings(textures: list[np.ndarray]) -> None:
+    """A keypoint without depth within ``bearing_edge_radius`` pixels of one with depth sits on a hole or a nearer
+    surface's border, not beyond the range: it does not become a bearing (the others still do)."""
+    rgb, depth = render(BASE, INTRINSICS, textures)
+    edge = INTRINSICS.height // 2
+    depth[:edge] = 0.0  # the upper half beyond the depth camera's range
+
+    def bearing_rows(radius: int) -> np.ndarray:
+        vo = VisualOdometry(OdometryConfig(far_landmarks=True, bearing_edge_radius=radius), INTRINSICS)
+        vo.track(rgb, depth, 0.0)
+        vo.local_mapping()
+        keyframe = vo.window[-1]
+        rows, found = vo.local_map.rows(keyframe.landmarks)
+        anchored = found & ~np.isnan(vo.local_map.anchors[rows, 0])
+        return keyframe.pixels[anchored, 1]
+
+    every = bearing_rows(0)
+    assert len(every) > 50 and np.any(every > edge - 6)
+    kept = bearing_rows(6)
+    assert len(kept) > 50 and np.all(np.rint(kept) < edge - 6)

@@ -11,7 +11,10 @@ whole window, so a window of a few keyframes is well posed without a gauge beyon
 on the whitened 3-vector lets a few wrong matches pull only linearly. Poses are ``T_camera_world`` updated by left
 perturbations ``exp(δ)·T`` (translation first); ``basis`` restricts δ to a subspace (a ground robot's x, y and yaw,
 see :func:`~fleetslam.slam.pose_refinement.planar_basis`). Optional priors on the relative pose of two keyframes
-(wheel odometry) join the normal equations as 6-vector residuals.
+(wheel odometry) join the normal equations as 6-vector residuals. A point seen without depth (beyond the sensor's
+range) may carry an inverse-depth prior instead, (1/‖X − c‖ − ρ₀)/σ_ρ from the camera centre c it was first seen
+from (Civera et al.'s inverse-depth parametrisation, as a weak prior on a point kept in x, y, z): with little
+parallax its bearings hold the poses' rotation while its distance stays where the prior and the parallax put it.
 
 With the points fixed the same code is motion-only pose refinement (tracking): one pose, no Schur complement.
 The window is small (≤ a dozen keyframes), so the reduced camera system is dense: one (V·d)² matrix.
@@ -73,6 +76,10 @@ class BundleProblem:
     priors: list[PosePrior] = field(default_factory=list)
     points_fixed: bool = False
     """Optimise the poses only (motion-only refinement against a map)."""
+    point_anchors: NDArray[np.float64] | None = None
+    """(P, 3+) the camera centre each point's inverse-depth prior is measured from; NaN rows (or None): no prior."""
+    inverse_depth_prior: tuple[float, float] = (0.0, 1.0)
+    """Mean and standard deviation (1/m) of the inverse distance of a point from its anchor."""
 
 
 @dataclass
@@ -88,6 +95,9 @@ class BundleResult:
     iterations: int
     hessian: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
     """The reduced (pose) system at the solution, (V·d)²: its inverse is the poses' covariance."""
+    point_hessian: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    """(P, 3, 3) each point's own block of the normal equations (its priors included) at the last linearisation:
+    its inverse is the point's covariance with the poses held (empty when the points are fixed)."""
 
 
 def _scatter(index: NDArray[np.intp], values: NDArray[np.float64], n: int) -> NDArray[np.float64]:
@@ -214,6 +224,22 @@ def _prior_terms(
     return cost, terms
 
 
+def _point_priors(
+    problem: BundleProblem, points: NDArray[np.float64]
+) -> tuple[float, NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]:
+    """Cost of the points' inverse-depth priors and, per point that has one, its index, whitened residual and its
+    Jacobian in the point (∂(1/d)/∂X = −(X − c)/d³)."""
+    if problem.point_anchors is None or problem.points_fixed:
+        return 0.0, np.zeros(0, np.intp), np.zeros(0), np.zeros((0, 3))
+    index = np.flatnonzero(~np.isnan(problem.point_anchors[:, 0]))
+    offset = points[index] - problem.point_anchors[index, :3]
+    distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-6)
+    mean, std = problem.inverse_depth_prior
+    residual = (1.0 / distance - mean) / std
+    jacobian = -offset / (distance**3 * std)[:, None]
+    return float(residual @ residual), index, residual, jacobian
+
+
 def _observation_pairs(obs_point: NDArray[np.intp]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Every ordered pair (a, b) of observations of the same point, itself included."""
     order = np.argsort(obs_point, kind="stable")
@@ -242,11 +268,13 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
     evaluation.linearize()
     prepared = _prepare_priors(problem)
     prior_cost, prior_terms = _prior_terms(prepared, poses, basis)
-    cost = evaluation.cost + prior_cost
+    point_terms = _point_priors(problem, points)
+    cost = evaluation.cost + prior_cost + point_terms[0]
     initial_cost = cost
     damping = 1e-4
     done = 0
     reduced = np.zeros((n_var * dof, n_var * dof))
+    point_hessian = np.zeros((0, 3, 3))
     pairs = _observation_pairs(problem.obs_point[var_of[problem.obs_pose] >= 0])
     if n_var == 0 and problem.points_fixed:
         iterations = 0
@@ -278,6 +306,10 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
             wjp_t = (jp * w[:, None, None]).transpose(0, 2, 1)
             h_pp = _scatter(problem.obs_point, wjp_t @ jp, n_points)
             g_p = _scatter(problem.obs_point, (wjp_t @ r[:, :, None])[:, :, 0], n_points)
+            _, prior_index, prior_residual, prior_jacobian = point_terms
+            h_pp[prior_index] += prior_jacobian[:, :, None] * prior_jacobian[:, None, :]
+            g_p[prior_index] += prior_jacobian * prior_residual[:, None]
+            point_hessian = h_pp
             h_pp_damped = h_pp + (damping * np.maximum(np.einsum("pii->pi", h_pp), 1e-9))[:, :, None] * np.eye(3)
             h_pp_inverse = np.linalg.inv(h_pp_damped + 1e-12 * np.eye(3))
             # Schur complement, observation pair by pair: a point seen from poses a and b couples them by
@@ -305,12 +337,14 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
             back = g_p + _scatter(coupled_point, per_obs[:, :, 0], n_points)
             new_points = points - (h_pp_inverse @ back[:, :, None])[:, :, 0]
         trial = _Evaluation(problem, new_poses, new_points)
-        trial_cost = trial.cost + _prior_terms(prepared, new_poses, basis, jacobians=False)[0]
+        trial_point_terms = _point_priors(problem, new_points)
+        trial_cost = trial.cost + _prior_terms(prepared, new_poses, basis, jacobians=False)[0] + trial_point_terms[0]
         if trial_cost < cost:
             improvement = (cost - trial_cost) / max(cost, 1e-12)
             poses, points, evaluation, cost = new_poses, new_points, trial, trial_cost
             evaluation.linearize()
             prior_terms = _prior_terms(prepared, poses, basis)[1]
+            point_terms = trial_point_terms
             damping = max(damping / 3.0, 1e-7)
             if improvement < tolerance:
                 break
@@ -327,4 +361,5 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
         final_cost=cost,
         iterations=done,
         hessian=reduced,
+        point_hessian=point_hessian,
     )

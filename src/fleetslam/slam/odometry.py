@@ -100,7 +100,10 @@ def _from_rvec_tvec(rvec: NDArray[np.float64], tvec: NDArray[np.float64]) -> NDA
 
 class LocalMap:
     """Landmarks in the odometry frame: positions, descriptors, stable ids (increasing) and the frame each was last
-    tracked in; capped in size, the longest unseen leave first."""
+    tracked in; capped in size, the longest unseen leave first. A landmark made from a keypoint without depth (a
+    bearing, ``far_landmarks``) also keeps its anchor: the camera centre it was first seen from and the standard
+    deviation of its inverse distance from there (NaN for the others): the window's adjustment puts an inverse-depth
+    prior on it and narrows that deviation with the parallax of the keyframes that saw it."""
 
     def __init__(self, max_size: int) -> None:
         self.max_size = max_size
@@ -108,6 +111,7 @@ class LocalMap:
         self.descriptors: NDArray[Any] | None = None
         self.ids = np.zeros(0, np.int64)
         self.last_seen = np.zeros(0, np.int64)
+        self.anchors = np.zeros((0, 4))
         self._next_id = 0
 
     def __len__(self) -> int:
@@ -118,21 +122,32 @@ class LocalMap:
         self.descriptors = None
         self.ids = np.zeros(0, np.int64)
         self.last_seen = np.zeros(0, np.int64)
+        self.anchors = np.zeros((0, 4))
 
-    def add(self, points: NDArray[np.float64], descriptors: NDArray[Any], frame: int = 0) -> NDArray[np.int64]:
-        """Append landmarks; returns their ids."""
+    def add(
+        self,
+        points: NDArray[np.float64],
+        descriptors: NDArray[Any],
+        frame: int = 0,
+        anchor: NDArray[np.float64] | None = None,
+    ) -> NDArray[np.int64]:
+        """Append landmarks (``anchor``: for bearings, the camera centre they were seen from and the standard
+        deviation of their inverse distance, for all of them); returns their ids."""
         ids = np.arange(self._next_id, self._next_id + len(points), dtype=np.int64)
         if len(points) == 0:
             return ids
         self._next_id += len(points)
+        anchors = np.full((len(points), 4), np.nan) if anchor is None else np.tile(anchor, (len(points), 1))
         if self.descriptors is None or len(self) == 0:
             self.points, self.descriptors = np.array(points, np.float64), descriptors.copy()
             self.ids, self.last_seen = ids, np.full(len(points), frame, np.int64)
+            self.anchors = anchors
         else:
             self.points = np.vstack([self.points, points])
             self.descriptors = np.vstack([self.descriptors, descriptors])
             self.ids = np.concatenate([self.ids, ids])
             self.last_seen = np.concatenate([self.last_seen, np.full(len(points), frame, np.int64)])
+            self.anchors = np.vstack([self.anchors, anchors])
         excess = len(self.points) - self.max_size
         if excess > 0:
             keep = np.sort(np.argsort(self.last_seen, kind="stable")[excess:])
@@ -143,14 +158,20 @@ class LocalMap:
         assert self.descriptors is not None
         self.points, self.descriptors = self.points[rows], self.descriptors[rows]
         self.ids, self.last_seen = self.ids[rows], self.last_seen[rows]
+        self.anchors = self.anchors[rows]
 
     def merge(self, dropped: NDArray[np.int64], kept: NDArray[np.int64]) -> None:
         """Drop the landmarks ``dropped``, each a duplicate of the one in ``kept`` (which keeps its position and
-        descriptor, and the later of the two frames last tracked)."""
+        descriptor, and the later of the two frames last tracked). Where the one dropped was measured or
+        triangulated and the one kept only had its prior (an anchor), the one kept takes its position and loses its
+        anchor."""
         rows, found = self.rows(dropped)
         kept_rows, kept_found = self.rows(kept)
         both = found & kept_found
         np.maximum.at(self.last_seen, kept_rows[both], self.last_seen[rows[both]])
+        measured = both & np.isnan(self.anchors[rows, 0]) & ~np.isnan(self.anchors[kept_rows, 0])
+        self.points[kept_rows[measured]] = self.points[rows[measured]]
+        self.anchors[kept_rows[measured]] = np.nan
         keep = np.ones(len(self), bool)
         keep[rows[found]] = False
         self._keep(np.flatnonzero(keep))
@@ -350,7 +371,10 @@ class VisualOdometry:
         self._lost_frames = 0
         tracked_ids = self.local_map.ids[matched_map[inliers]]
         self.local_map.last_seen[matched_map[inliers]] = self.frames
-        is_keyframe = self._needs_keyframe(pose, int(inliers.sum()))
+        # Landmarks placed from bearings do not delay keyframes: the keyframe rules count the map a keyframe could
+        # have made without them (more tracked, fewer keyframes, fewer loops closed: triangulation_keyframes).
+        former_bearing = ~np.isnan(self.local_map.anchors[matched_map, 3])
+        is_keyframe = self._needs_keyframe(pose, int((inliers & ~former_bearing).sum()))
         if is_keyframe:
             # Making the keyframe (its new landmarks, the triangulation, its surface) is local mapping's work, as
             # in ORB-SLAM: the frame's pose goes out first (local_mapping(), or the next track(), makes it).
@@ -401,15 +425,19 @@ class VisualOdometry:
         landmark should appear (repetitive texture such as floor tiles then cannot mismatch)."""
         if len(feats) < 2 or self.local_map.descriptors is None or len(self.local_map) < 2:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        # Bearings (far_landmarks) are the window's business until their distance is known.
+        placed = np.flatnonzero(np.isnan(self.local_map.anchors[:, 0]))
         if predicted is None:
-            return match_ratio(feats.descriptors, self.local_map.descriptors, self.config.match_ratio)
+            q, t = match_ratio(feats.descriptors, self.local_map.descriptors[placed], self.config.match_ratio)
+            return q, placed[t]
         T_cw = invert(predicted)
         cam = self.local_map.points @ T_cw[:3, :3].T + T_cw[:3, 3]
         z = np.maximum(cam[:, 2], 1e-9)
         u = self.intrinsics.fx * cam[:, 0] / z + self.intrinsics.cx
         v = self.intrinsics.fy * cam[:, 1] / z + self.intrinsics.cy
         visible = np.flatnonzero(
-            (cam[:, 2] > self.config.min_depth)
+            np.isnan(self.local_map.anchors[:, 0])
+            & (cam[:, 2] > self.config.min_depth)
             & (u > -radius)
             & (u < self.intrinsics.width + radius)
             & (v > -radius)
@@ -551,6 +579,13 @@ class VisualOdometry:
         unmeasured = ~frame.valid
         unmeasured[tracked] = False
         far_index, far_ids, leftover = self._triangulate(pose, frame, np.flatnonzero(unmeasured))
+        bearing_ids = np.full(len(leftover), -1, np.int64)
+        if self._far_landmarks(frame):
+            # Keypoints beside a measured depth (bearing_edge_radius) stay triangulation candidates only.
+            beyond = self._beyond_range(frame, leftover)
+            bearing_ids[beyond] = self._bearing_landmarks(pose, frame, leftover[beyond])
+            far_index = np.concatenate([far_index, leftover[beyond]])
+            far_ids = np.concatenate([far_ids, bearing_ids[beyond]])
         observed = np.concatenate([tracked, new_index, far_index])
         if len(self.window) == self.window.maxlen and self.config.window_fixed_keyframes:
             self._retired.append(self.window[0])
@@ -569,7 +604,7 @@ class VisualOdometry:
         feats = frame.features
         self._candidates.append(_Candidates(
             self.window[-1], feats.keypoints[leftover].astype(np.float64), feats.descriptors[leftover],
-            feats.scales[leftover].astype(np.float64),
+            feats.scales[leftover].astype(np.float64), bearing_ids,
         ))  # fmt: skip
         if self.config.fuse_landmarks and self.extractor.binary:
             depths = np.where(frame.valid, frame.points[:, 2], 0.0)
@@ -578,6 +613,60 @@ class VisualOdometry:
         self._adjustment_pending = len(self.window) >= 2 and self.config.window_keyframes >= 2
         self._keyframe_pose = pose.copy()
         self._keyframe_tracked = int(frame.valid.sum())
+
+    def _far_landmarks(self, frame: _Frame) -> bool:
+        """Whether the keyframe's keypoints without depth become landmarks at once (``far_landmarks``): not where
+        the wheels measure the motion (they hold the heading; a ground robot's results stay as they were)."""
+        wheels = self.config.use_prior and self.config.wheel_drift > 0 and frame.prior is not None
+        return self.config.far_landmarks and not wheels
+
+    def _bearing_landmarks(
+        self, pose: NDArray[np.float64], frame: _Frame, index: NDArray[np.intp]
+    ) -> NDArray[np.int64]:
+        """Landmarks of the keypoints ``index`` (no depth): on their rays, at the distance of the inverse-depth
+        prior's mean, anchored at this keyframe's centre; returns their ids."""
+        if len(index) == 0:
+            return np.zeros(0, np.int64)
+        keypoints = frame.features.keypoints[index].astype(np.float64)
+        rays = np.stack(
+            [
+                (keypoints[:, 0] - self.intrinsics.cx) / self.intrinsics.fx,
+                (keypoints[:, 1] - self.intrinsics.cy) / self.intrinsics.fy,
+                np.ones(len(index)),
+            ],
+            axis=1,
+        )
+        rays /= np.linalg.norm(rays, axis=1)[:, None]
+        mean, std = self._inverse_depth_prior()
+        world = (rays / mean) @ pose[:3, :3].T + pose[:3, 3]
+        anchor = np.append(pose[:3, 3], std)
+        return self.local_map.add(world, frame.features.descriptors[index], self.frames, anchor=anchor)
+
+    def _beyond_range(self, frame: _Frame, index: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Which of the keypoints ``index`` (no depth) have no measured depth within ``bearing_edge_radius`` pixels
+        either: their depth is missing because they lie beyond the sensor's range, not because they sit on a depth
+        edge (a nearer surface's border) or in a small hole."""
+        r = self.config.bearing_edge_radius
+        if r <= 0 or len(index) == 0:
+            return np.ones(len(index), bool)
+        valid = (frame.depth > 0).astype(np.uint8)
+        near = import_cv2().dilate(valid, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        pixels = np.rint(frame.features.keypoints[index]).astype(np.intp)
+        h, w = near.shape
+        return ~near[np.clip(pixels[:, 1], 0, h - 1), np.clip(pixels[:, 0], 0, w - 1)]
+
+    def _triangulated_spread(self) -> float:
+        """Relative standard deviation of the distance of a point triangulated from two rays ``min_parallax_deg``
+        apart, each off by ``pixel_std``: √2·(σ/f)/α."""
+        return float(
+            np.sqrt(2.0) * self.config.pixel_std / self.intrinsics.fx / np.radians(self.config.min_parallax_deg)
+        )
+
+    def _inverse_depth_prior(self) -> tuple[float, float]:
+        """Mean and standard deviation (1/m) of a bearing's inverse distance before any parallax: the depth camera
+        did not measure it, so it lies beyond ``max_depth`` (or the sensor's own reach), 1/d in (0, 1/max_depth): the
+        mean 1/(2·max_depth), the deviation ``bearing_inverse_depth_std``."""
+        return 0.5 / self.config.max_depth, self.config.bearing_inverse_depth_std
 
     def local_mapping(self) -> NDArray[np.float64] | None:
         """Make the new keyframe (its landmarks, the triangulation, its surface) and bundle-adjust the window
@@ -624,8 +713,12 @@ class VisualOdometry:
         landmarks[pending.observed] = keyframe.landmarks[: len(pending.observed)]
         view = View(keyframe.pose, feats.keypoints.astype(np.float64), feats.descriptors,
                     feats.scales.astype(np.float64), pending.depths, landmarks)  # fmt: skip
+        distinct = None
+        if self.config.bearing_fusion_radius > 0:
+            distinct = ~np.isnan(local_map.anchors[:, 0])
         forward = fuse_into_view(
-            view, local_map.ids, local_map.points, local_map.descriptors, self._K, **options
+            view, local_map.ids, local_map.points, local_map.descriptors, self._K, **options, distinct=distinct,
+            distinct_radius=self.config.bearing_fusion_radius, distinct_ratio=self.config.bearing_fusion_ratio,
         )  # fmt: skip
         if len(forward.observed_index):
             # Keypoints of the new keyframe that had no landmark observe the one projected onto them.
@@ -722,10 +815,21 @@ class VisualOdometry:
                     continue
                 index = unmeasured[result.index_b]
                 ids = self.local_map.add(result.points, feats.descriptors[index], self.frames)
-                previous.landmarks = np.concatenate([previous.landmarks, ids])
-                previous.pixels = np.vstack([previous.pixels, candidates.pixels[result.index_a]])
-                previous.depths = np.concatenate([previous.depths, np.zeros(len(ids))])
-                previous.scales = np.concatenate([previous.scales, candidates.scales[result.index_a]])
+                # A candidate that is a bearing already becomes the triangulated point (the keyframe observes it).
+                bearing = candidates.bearings[result.index_a]
+                rows, found = self.local_map.rows(bearing)
+                found &= bearing >= 0
+                if found.any():
+                    self.local_map.points[rows[found]] = result.points[found]
+                    self.local_map.anchors[rows[found], :3] = np.nan
+                    self.local_map.last_seen[rows[found]] = self.frames
+                    self.local_map.merge(ids[found], bearing[found])
+                    ids = np.where(found, bearing, ids)
+                fresh = ~found
+                previous.landmarks = np.concatenate([previous.landmarks, ids[fresh]])
+                previous.pixels = np.vstack([previous.pixels, candidates.pixels[result.index_a[fresh]]])
+                previous.depths = np.concatenate([previous.depths, np.zeros(int(fresh.sum()))])
+                previous.scales = np.concatenate([previous.scales, candidates.scales[result.index_a[fresh]]])
                 candidates.remove(result.index_a)
                 found_index.append(index)
                 found_ids.append(ids)
@@ -769,10 +873,28 @@ class VisualOdometry:
             fixed=fixed,
         )
         problem.priors = self._wheel_priors(window)
+        problem.point_anchors = self.local_map.anchors[point_rows]
+        problem.inverse_depth_prior = self._inverse_depth_prior()
         result = bundle_adjust(problem, iterations=self.config.window_iterations)
         if not np.isfinite(result.final_cost) or result.final_cost > result.initial_cost:
             return window[-1].pose
         self.local_map.points[point_rows] = result.points
+        # A landmark a keyframe measured the depth of is no longer a bearing only; the others' inverse distance is
+        # as uncertain as the adjustment left it (the point's own block, the poses held).
+        anchors = self.local_map.anchors
+        bearing = np.flatnonzero(~np.isnan(anchors[point_rows, 0]))
+        if len(bearing) and len(result.point_hessian):
+            offset = result.points[bearing] - anchors[point_rows[bearing], :3]
+            distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-6)
+            ray = offset / distance[:, None]
+            covariance = np.linalg.inv(result.point_hessian[bearing] + 1e-9 * np.eye(3))
+            std = np.sqrt(np.maximum(np.einsum("pi,pij,pj->p", ray, covariance, ray), 0.0)) / distance**2
+            anchors[point_rows[bearing], 3] = np.minimum(anchors[point_rows[bearing], 3], std)
+            # As well placed as a point triangulated from two rays min_parallax_deg apart: an ordinary landmark.
+            placed = std * distance <= self._triangulated_spread()
+            anchors[point_rows[bearing[placed]], :3] = np.nan
+        measured = np.unique(point_index[(depths > 0) & result.inliers])
+        anchors[point_rows[measured]] = np.nan
         for kf, T_cw in zip(window, result.poses, strict=True):
             kf.pose = orthonormalized(self.constrain(invert(T_cw)))
         # Observations the adjustment found to be wrong matches leave the window.
@@ -966,12 +1088,15 @@ class _Candidates:
     pixels: NDArray[np.float64]
     descriptors: NDArray[Any]
     scales: NDArray[np.float64]
+    bearings: NDArray[np.int64]
+    """The bearing landmark each keypoint already is (``far_landmarks``), −1 where none."""
 
     def remove(self, rows: NDArray[np.intp]) -> None:
         """Drop the candidates that became landmarks."""
         keep = np.ones(len(self.pixels), bool)
         keep[rows] = False
         self.pixels, self.descriptors, self.scales = self.pixels[keep], self.descriptors[keep], self.scales[keep]
+        self.bearings = self.bearings[keep]
 
 
 @dataclass
