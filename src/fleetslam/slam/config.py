@@ -51,7 +51,9 @@ class FeatureConfig(ConfigModel):
     2 cm (0.56–1.58, 10 of 12 better); but the photographic hall (never used for tuning), hand-held, 320×240:
     loop_revisit 1.61/1.49/1.47/1.50 → 1.25/1.34/1.06/0.84, survey 2.32/1.64/1.74/1.63 → 3.17/2.56/1.52/1.84,
     figure eight 0.98/1.24/0.89/1.25 → 1.02/0.95/0.83/4.01 (two cells over 3 cm); 640×480 survey at 5 Hz,
-    hand-held, 1.33 → 1.47 cm and tracking 11.5–12.1 → 15.5 ms per frame. Hence not the default."""
+    hand-held, 1.33 → 1.47 cm and tracking 11.5–12.1 → 15.5 ms per frame; the photographic hall at 640×480,
+    hand-held, 5 Hz: loop_revisit 0.26 → 1.78 cm, survey 0.32 → 1.54 cm, tracking over 20 ms per frame. Hence not
+    the default."""
 
 
 class OdometryConfig(ConfigModel):
@@ -216,7 +218,7 @@ class OdometryConfig(ConfigModel):
     """Keypoints the depth camera did not measure (beyond its range, on edges) become landmarks when the next
     keyframe sees them again from a useful angle (epipolar search and triangulation, as ORB-SLAM): far texture
     holds the heading where measured points are few."""
-    far_landmarks: bool = False
+    far_landmarks: bool = True
     """A keyframe's keypoints without depth that it neither tracked nor triangulated become landmarks at once, as
     *bearings*: on their rays at 2·``max_depth`` with a weak inverse-depth prior from the keyframe's centre
     (Civera et al.'s inverse-depth points; ORB-SLAM2 uses far stereo points as monocular ones). Landmark fusion
@@ -225,35 +227,36 @@ class OdometryConfig(ConfigModel):
     keyframe on, where a hall's measured points are mostly floor. Tracking matches only landmarks of known distance:
     a bearing becomes one when the epipolar triangulation (``triangulate``) finds it, when a keyframe measures its
     depth, or when the adjustment has narrowed its distance as far as a triangulation at ``min_parallax_deg`` would.
-    Not where the wheels measure the motion (they hold the heading: a ground robot's results do not change). Off by
-    default: measured (benchmarks/slam_matrix.py --set odometry.far_landmarks=true), procedural hall, 320×240,
-    hand-held, ATE at 5/10/15/30 Hz against 2.74/3.52/4.72/2.88 (survey), 1.95/1.97/2.15/4.92 (figure eight) and
-    1.44/1.44/2.33/1.52 cm (loop_revisit) by default: survey 3.48/3.38/3.99/2.22, figure eight 2.79/3.53/3.14/5.42,
-    loop_revisit 1.15/1.26/1.83/1.74 cm (6 cells better, 6 worse; 6 within 3 cm instead of 9). The landmarks
-    placed from bearings are not counted by the keyframe rules (counted, fewer keyframes were made and fewer loops
-    closed, as with ``triangulation_keyframes``). The other designs tried were worse (docs/slam.md, "Far features as
-    bearings"). Guards against its wrong bearings: ``bearing_edge_radius``, ``bearing_fusion_radius``."""
+    Not where the wheels measure the motion (they hold the heading: a ground robot's results do not change, to the
+    bit). The landmarks placed from bearings are not counted by the keyframe rules (counted, fewer keyframes were
+    made and fewer loops closed, as with ``triangulation_keyframes``). Without its guards (``bearing_edge_radius``,
+    ``bearing_fusion_radius``) it did not beat the camera alone (6 of the procedural hall's 12 hand-held 320×240
+    cells better, 6 worse); with them, and the window stepping bearings in inverse depth (the defaults, 26 November
+    2026, benchmarks/slam_matrix.py, all 48 hand-held cells against the camera alone): 46 of 48 within 3 cm instead
+    of 45 (the procedural survey at 10/15 Hz 3.52/4.72 → 2.08/3.04 cm, the figure eight at 30 Hz 4.92 → 4.60), the
+    mean 1.44 → 1.35 cm, the median 1.39 → 1.29 cm, 25 cells better and 23 worse (figures per cell in
+    docs/slam.md); tracking's time unchanged, local mapping 36–72 ms per keyframe instead of 10–50. The other designs
+    tried were worse (docs/slam.md, "Far features as bearings")."""
     bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
     """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
     1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),
     it held the distances of points 5-8 m away at 12 m and the parallax they lacked turned the heading instead
     (survey at 15 Hz, odometry alone: 6.2 → 9.0 cm); 0.5 let the parallax decide (3.2 cm; 2: 4.4 cm)."""
-    bearing_edge_radius: int = Field(default=0, ge=0)
+    bearing_edge_radius: int = Field(default=4, ge=0)
     """A keypoint without depth becomes a bearing (``far_landmarks``) only where no pixel within this many of it has
     a depth either: a hole at a nearer surface's border (the sensor drops both sides of a depth edge) is not a
     point beyond the range; such a keypoint stays a candidate of the epipolar triangulation only. 0: every keypoint
     without depth. Measured on the procedural figure eight, hand-held, 320×240, 10 Hz (docs/slam.md, "Why the
     bearings made the figure eight worse"): half of the bearings the true poses place are nearer than the sensor's
-    range; 4 px: 3.53 → 2.86 cm, with ``bearing_fusion_radius=80`` and ``bearing_fusion_ratio=0.7`` 2.09 cm. Off by
-    default: with both, 8 of the 12 procedural hand-held 320×240 cells are better and 4 worse than by default."""
-    bearing_fusion_radius: float = Field(default=0.0, ge=0.0)
+    range; 4 px: 3.53 → 2.86 cm, with ``bearing_fusion_radius=80`` and ``bearing_fusion_ratio=0.7`` 2.09 cm."""
+    bearing_fusion_radius: float = Field(default=80.0, ge=0.0)
     """Pixels around a bearing's projection (``far_landmarks``) within which the keypoint the landmark fusion gives
     it must be the clearly closest descriptor (``bearing_fusion_ratio``): its distance is a guess, so the keypoint at
     its projection may be a repeat of its texture (stripes, grout lines) while the true one lies elsewhere along its
     epipolar line. 0: no such test. Figure eight at 10 Hz: 40 px 2.59 cm, 80 px (ratio 0.7) with
-    ``bearing_edge_radius=4`` 2.09 cm, against 3.53 without; it costs local mapping a search per bearing (there,
-    ~5 ms a keyframe)."""
-    bearing_fusion_ratio: float = Field(default=0.8, gt=0.0, le=1.0)
+    ``bearing_edge_radius=4`` 2.09 cm, against 3.53 without; it costs local mapping a search per bearing, on a
+    grid of cells (there, ~5 ms a keyframe)."""
+    bearing_fusion_ratio: float = Field(default=0.7, gt=0.0, le=1.0)
     """Largest ratio of the best to the second-best descriptor distance within ``bearing_fusion_radius``."""
     min_parallax_deg: float = Field(default=1.0, gt=0.0)
     """Smallest angle between the two rays of a triangulated landmark (smaller: its depth is too uncertain)."""
