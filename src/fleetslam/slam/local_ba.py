@@ -301,9 +301,10 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
     # leaving its error to the poses (Civera et al.; measured: texture 2-4 m away started at 9 m, five iterations,
     # poses 78-92 mm off in x, y, z, 3-6 mm in inverse depth, as from the points' true distances).
     anchored = np.zeros(0, np.intp)
+    anchor_centres = np.zeros((0, 3))
     if problem.point_anchors is not None and not problem.points_fixed:
         anchored = np.flatnonzero(~np.isnan(problem.point_anchors[:, 0]))
-    anchor_centres = problem.point_anchors[anchored, :3] if len(anchored) else np.zeros((0, 3))
+        anchor_centres = problem.point_anchors[anchored, :3]
     if n_var == 0 and problem.points_fixed:
         iterations = 0
     for done in range(1, iterations + 1):  # noqa: B007 (the count is reported)
