@@ -236,7 +236,7 @@ class OdometryConfig(ConfigModel):
     of 45 (the procedural survey at 10/15 Hz 3.52/4.72 → 2.08/3.04 cm, the figure eight at 30 Hz 4.92 → 4.60), the
     mean 1.44 → 1.35 cm, the median 1.39 → 1.29 cm, 25 cells better and 23 worse (figures per cell in
     docs/slam.md); tracking's time unchanged, local mapping 36–72 ms per keyframe instead of 10–50. The other designs
-    tried were worse (docs/slam.md, "Far features as bearings")."""
+    tried were worse (docs/slam.md, the table of settings tried on the hand-held cells)."""
     bearing_inverse_depth_std: float = Field(default=0.5, gt=0.0)
     """Standard deviation (1/m) of a bearing's inverse-distance prior (``far_landmarks``), about the mean
     1/(2·``max_depth``). Wide: where the prior is as narrow as the interval beyond the sensor (1/(2·``max_depth``)),
