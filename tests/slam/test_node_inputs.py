@@ -67,6 +67,11 @@ def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: 
     slam.on_camera_info(info)
     assert slam.process(FramePair(round(2.5e9), None, None, time.monotonic())) is None  # images never decoded
     assert slam.counts["late_wheel_frames"] == 1 and slam.frames == 0
+    # A frame older than every wheel pose held (a late sample from the camera's start, the robot since driven on) is
+    # stale: the wheels cannot place it, and tracked without them it would start the map in a frame of its own.
+    assert slam.before_wheels(0.5) and not slam.before_wheels(1.0) and not slam.before_wheels(1.55)
+    assert slam.process(FramePair(round(0.5e9), None, None, time.monotonic())) is None
+    assert slam.counts["stale_frames"] == 1 and slam.frames == 0
 
 
 def test_save_map_writes_only_plain_names_inside_the_maps_directory(

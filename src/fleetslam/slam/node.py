@@ -158,7 +158,7 @@ class SlamNode:
         self.queue = FrameQueue(self.config.max_pending)
         self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
                        "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0,
-                       "peer_keyframes": 0, "peer_closures": 0, "bad_peer_messages": 0,
+                       "stale_frames": 0, "peer_keyframes": 0, "peer_closures": 0, "bad_peer_messages": 0,
                        "graph_requests": 0, "caught_up_summaries": 0, "catch_up_failures": 0}  # fmt: skip
         self._odometry_ms: list[float] = []
         self._latency_ms: list[float] = []
@@ -322,6 +322,14 @@ class SlamNode:
         newest = self.wheel_poses.newest_stamp
         return newest is not None and 0.0 < stamp - newest < self.config.wheels_gone_after
 
+    def before_wheels(self, stamp: float) -> bool:
+        """The wheel odometry runs but holds no pose as old as ``stamp``: a frame from before the wheels' first pose,
+        or one that arrives later than the buffer reaches back (a late sample from the sensor's start)."""
+        if not self.config.use_wheel_odometry or self.base_camera is None:
+            return False
+        oldest = self.wheel_poses.oldest_stamp
+        return oldest is not None and stamp < oldest - self.wheel_poses.tolerance
+
     def on_rgb(self, msg: Any) -> None:
         self.queue.put_rgb(ns_from_stamp(msg.header.stamp), msg)
 
@@ -468,6 +476,11 @@ class SlamNode:
         prior = self.wheel_prior(stamp_ns / 1e9)
         if prior is None and self.wheels_behind(stamp_ns / 1e9):
             self.counts["late_wheel_frames"] += 1
+            return None
+        if prior is None and self.before_wheels(stamp_ns / 1e9):
+            # Tracked without the wheels, it would start the map in a frame the next frame (with them) cannot
+            # reach: a demo's robot that had driven 4.5 m since kept that first pose 4.5 m off in its trajectory.
+            self.counts["stale_frames"] += 1
             return None
         rgb, depth = rgb_from_image(pair.rgb), depth_from_image(pair.depth)
         if depth.shape != rgb.shape[:2]:

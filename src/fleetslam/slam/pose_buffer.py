@@ -40,6 +40,11 @@ class PoseBuffer:
         """Stamp of the newest pose, or None when empty."""
         return self._stamps[-1] if self._stamps else None
 
+    @property
+    def oldest_stamp(self) -> float | None:
+        """Stamp of the oldest pose held, or None when empty."""
+        return self._stamps[0] if self._stamps else None
+
     def clear(self) -> None:
         self._stamps.clear()
         self._poses.clear()
