@@ -31,6 +31,20 @@ def odometry(x: float, stamp_s: float, quaternion: tuple[float, float, float, fl
     return msg
 
 
+def test_frames_wait_for_published_wheels_to_start_and_a_camera_without_wheels_does_not(
+    make_context: Callable[..., Context],
+) -> None:
+    """Tracked without the wheels, a first frame starts the map where the next (with them) cannot follow: while an
+    ``odom`` publisher is known and silent, frames wait for ``wheels_gone_after``; with no publisher, none do."""
+    slam = SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig(wheels_gone_after=1.5))
+    assert not slam.wheels_starting()  # nobody publishes odom: a camera without wheels goes on at once
+    robot = Node("base", context=make_context("c3po"))
+    robot.create_publisher("nav_msgs/msg/Odometry", "odom", QoSProfile(depth=50))
+    assert wait_until(lambda: slam.wheels_starting(), 1.0)  # the publisher is known, no pose has come
+    time.sleep(1.6)
+    assert not slam.wheels_starting()  # waited long enough: the wheels are taken as gone
+
+
 def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: Callable[..., Context]) -> None:
     slam = SlamNode(Node("slam", context=make_context("c3po")), SlamNodeConfig())
     robot = Node("base", context=make_context("c3po"))

@@ -108,7 +108,9 @@ class SlamNodeConfig(ConfigModel):
     """A frame whose wheel pose has not arrived after ``odom_wait`` is skipped (counted as ``late_wheel_frames``) while
     the newest wheel pose is less than this (s) older than the frame: the wheels are late, not gone, and a frame
     without its prior could lose a ground robot in a blank view that the wheels would have carried it through.
-    Older than this, the wheels are taken as gone and frames are processed without them."""
+    Older than this, the wheels are taken as gone and frames are processed without them. At the start, while a
+    publisher of ``odom`` is known but its first pose (or the camera's extrinsic) has not arrived, frames wait as
+    long (``wheels_starting``)."""
     odom_tolerance: float = Field(default=0.1, gt=0.0)
     """How far (s) a camera stamp may lie outside the buffered wheel poses and still get a prior."""
     peers: list[str] = Field(default_factory=list)
@@ -156,6 +158,9 @@ class SlamNode:
         self.frames = 0
         """Frames processed."""
         self.queue = FrameQueue(self.config.max_pending)
+        self._first_frame_at: float | None = None
+        """When the first frame reached process() (monotonic s): the wheels' start is waited for from there."""
+        self._odom_topic = ""
         self.counts = {"relocalisations": 0, "loop_closures": 0, "loops_retracted": 0, "lost_frames": 0,
                        "coasting_frames": 0, "keyframes": 0, "failed_frames": 0, "late_wheel_frames": 0,
                        "stale_frames": 0, "peer_keyframes": 0, "peer_closures": 0, "bad_peer_messages": 0,
@@ -202,7 +207,7 @@ class SlamNode:
         if self.config.use_wheel_odometry:
             # Deep enough for several seconds of 50 Hz odometry: a starved process must not lose the wheel poses
             # it needs as priors for the frames it is still working through.
-            subscribe(topics.ODOM, self.on_odom, 500)
+            self._odom_topic = subscribe(topics.ODOM, self.on_odom, 500).topic
             subscribe(topics.TF_STATIC, self.on_tf_static, 1)
         self.graph_writer: GraphDeltaWriter[Any] = GraphDeltaWriter()
         """What this agent's ``graph_updates`` have sent."""
@@ -321,6 +326,23 @@ class SlamNode:
             return False
         newest = self.wheel_poses.newest_stamp
         return newest is not None and 0.0 < stamp - newest < self.config.wheels_gone_after
+
+    def wheels_starting(self) -> bool:
+        """Wheel odometry is published (the graph knows a publisher of this agent's ``odom``) but neither its first
+        pose nor the camera's extrinsic has arrived, within ``wheels_gone_after`` of the node's first frame: frames
+        wait for it. Tracked without the wheels, the first frame starts the map in a frame the next one (with them)
+        cannot predict from: a demo's robot lost it and kept its first pose 39 cm off. A camera without wheels
+        (no publisher) does not wait."""
+        if not self.config.use_wheel_odometry:
+            return False
+        if self.base_camera is not None and self.wheel_poses.newest_stamp is not None:
+            return False
+        now = time.monotonic()
+        if self._first_frame_at is None:
+            self._first_frame_at = now
+        if now - self._first_frame_at >= self.config.wheels_gone_after:
+            return False
+        return bool(self.node.context.graph.publishers_info(self._odom_topic))
 
     def before_wheels(self, stamp: float) -> bool:
         """The wheel odometry runs but holds no pose as old as ``stamp``: a frame from before the wheels' first pose,
@@ -474,7 +496,7 @@ class SlamNode:
             return None
         stamp_ns = pair.stamp_ns
         prior = self.wheel_prior(stamp_ns / 1e9)
-        if prior is None and self.wheels_behind(stamp_ns / 1e9):
+        if prior is None and (self.wheels_behind(stamp_ns / 1e9) or self.wheels_starting()):
             self.counts["late_wheel_frames"] += 1
             return None
         if prior is None and self.before_wheels(stamp_ns / 1e9):
