@@ -259,7 +259,8 @@ def _inverse_depth_frames(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Per anchored point, its local inverse-depth coordinates q = (α, β, ρ) about its current place:
     X(q) = c + (u + α·e₁ + β·e₂)/ρ, with u the unit ray from its anchor c, e₁, e₂ across it and ρ = 1/‖X − c‖
-    (q = (0, 0, ρ) here). Returns the ray u, the basis (P, 3, 3) with columns e₁, e₂, u, and ∂X/∂q (P, 3, 3)."""
+    (q = (0, 0, ρ) here). Returns the distance 1/ρ, the basis (P, 3, 3) with columns e₁, e₂, u, and ∂X/∂q
+    (P, 3, 3)."""
     offset = points - anchors
     distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-9)
     ray = offset / distance[:, None]
@@ -269,7 +270,7 @@ def _inverse_depth_frames(
     e1 /= np.linalg.norm(e1, axis=1)[:, None]
     e2 = np.cross(ray, e1)
     jacobian = np.stack([e1 * distance[:, None], e2 * distance[:, None], -ray * (distance**2)[:, None]], axis=2)
-    return ray, np.stack([e1, e2, ray], axis=2), jacobian
+    return distance, np.stack([e1, e2, ray], axis=2), jacobian
 
 
 def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float = 1e-6) -> BundleResult:
@@ -334,7 +335,7 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
         if not problem.points_fixed:
             _, prior_index, prior_residual, prior_jacobian = point_terms
             if len(anchored):
-                _, frames, to_q = _inverse_depth_frames(points[anchored], anchor_centres)
+                distance, frames, to_q = _inverse_depth_frames(points[anchored], anchor_centres)
                 change = np.broadcast_to(np.eye(3), (n_points, 3, 3)).copy()
                 change[anchored] = to_q
                 jp = jp @ change[problem.obs_point]
@@ -377,7 +378,6 @@ def bundle_adjust(problem: BundleProblem, iterations: int = 8, tolerance: float 
             new_points = points + step_points
             if len(anchored):
                 q = step_points[anchored]
-                distance = np.linalg.norm(points[anchored] - anchor_centres, axis=1)
                 # ρ + δρ kept positive (in front of the anchor): a step past it is the linearisation's.
                 rho = np.maximum(1.0 / distance + q[:, 2], 1e-3)
                 direction = frames[:, :, 2] + frames[:, :, 0] * q[:, :1] + frames[:, :, 1] * q[:, 1:2]
