@@ -1,6 +1,7 @@
 """KEEP_LAST subscriptions take their samples from a Zenoh ring channel on a receive thread of their own and hand
-them to the node's executor in batches: the node's guarantees (one thread, one callback at a time, KEEP_LAST,
-statistics) hold, Zenoh never waits for a slow node, and undeclaring ends the thread."""
+them to the node's executor in batches, or deliver them themselves while the executor is idle and the callback is
+quick: the node's guarantees (one callback at a time, in order, KEEP_LAST, statistics) hold, Zenoh never waits for
+a slow node, and undeclaring ends the thread."""
 
 import subprocess
 import sys
@@ -47,7 +48,7 @@ def test_a_slow_callback_gets_the_newest_samples_and_every_sample_is_counted(
     assert got == ["0", "38", "39", "40"]
 
 
-def test_a_nodes_callbacks_run_one_at_a_time_on_its_executor(make_context: Callable[..., Context]) -> None:
+def test_a_nodes_callbacks_run_one_at_a_time(make_context: Callable[..., Context]) -> None:
     talker = Node("talker", context=make_context(), statistics_period_s=0)
     node = Node("busy", context=make_context(), statistics_period_s=0)
     state = {"active": 0, "most": 0}
@@ -89,9 +90,81 @@ def test_a_nodes_callbacks_run_one_at_a_time_on_its_executor(make_context: Calla
         sender.join()
     assert wait_until(lambda: all(values and values[-1] == 299 for values in got.values()), 10.0), got
     assert state["most"] == 1
-    assert threads == {f"executor:{node.fq_name}"}
+    receivers = {sub._receiver.name for sub in node._subscriptions if sub._receiver is not None}
+    assert len(receivers) == 2
+    assert f"executor:{node.fq_name}" in threads and threads <= {f"executor:{node.fq_name}", *receivers}
     for values in got.values():
         assert values == sorted(values)  # in arrival order
+
+
+def test_a_slow_callback_goes_back_to_the_executor_and_a_quick_one_to_the_receive_thread(
+    make_context: Callable[..., Context],
+) -> None:
+    talker = Node("talker", context=make_context(), statistics_period_s=0)
+    node = Node("listener", context=make_context(), statistics_period_s=0)
+    got: list[tuple[str, str]] = []
+
+    def on_message(msg: Any) -> None:
+        if msg.data.startswith("slow"):
+            time.sleep(0.005)  # over QUICK_CALLBACK_S
+        got.append((msg.data, threading.current_thread().name))
+
+    sub = node.create_subscription("std_msgs/msg/String", "/pace", on_message, QoSProfile(depth=10))
+    pub = talker.create_publisher("std_msgs/msg/String", "/pace")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    time.sleep(0.1)
+    receiver, executor = sub._receiver.name, f"executor:{node.fq_name}"  # type: ignore[union-attr]
+
+    def send(data: str) -> str:
+        pub.publish(String(data=data))
+        assert wait_until(lambda: got and got[-1][0] == data, timeout_s=2.0), f"{data} was not delivered"
+        time.sleep(0.01)  # a lone sample each: the executor is idle again
+        return got[-1][1]
+
+    for round_ in range(3):
+        # Quick callbacks move to the receive thread (a quick one measured over 1 ms on a loaded machine delays
+        # that by a sample: try a few).
+        assert any(send(f"quick{round_}.{k}") == receiver for k in range(20))
+        assert send(f"slow{round_}") == receiver  # its cost shows only once it has run
+        assert send(f"after{round_}") == executor  # the slow one's successor: on the executor
+    assert sub.statistics.total_delivered == len(got)
+
+
+def test_a_callback_on_the_receive_thread_may_destroy_its_subscription_and_its_node(
+    make_context: Callable[..., Context],
+) -> None:
+    talker = Node("talker", context=make_context(), statistics_period_s=0)
+    node = Node("listener", context=make_context(), statistics_period_s=0)
+    got: list[tuple[str, str]] = []
+
+    def on_message(msg: Any) -> None:
+        got.append((msg.data, threading.current_thread().name))
+        if msg.data == "stop":
+            sub.destroy()
+            node.destroy()  # stops the executor: must not wait for this very callback
+
+    sub = node.create_subscription("std_msgs/msg/String", "/end", on_message, QoSProfile(depth=10))
+    pub = talker.create_publisher("std_msgs/msg/String", "/end")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    time.sleep(0.1)
+    receiver = sub._receiver
+    assert receiver is not None
+    for k in range(20):  # until the receive thread delivers them (the first goes to the executor)
+        pub.publish(String(data=str(k)))
+        assert wait_until(lambda k=k: len(got) == k + 1, timeout_s=2.0)
+        time.sleep(0.01)
+        if got[-1][1] == receiver.name:
+            break
+    assert got[-1][1] == receiver.name
+    started = time.monotonic()
+    pub.publish(String(data="stop"))
+    assert wait_until(lambda: got[-1][0] == "stop", timeout_s=2.0)
+    assert wait_until(lambda: not receiver.is_alive() and not node._executor._thread.is_alive(), 2.0)
+    assert time.monotonic() - started < 1.5  # no wait for itself (the executor's stop waits up to 2 s)
+    assert got[-1][1] == receiver.name
+    pub.publish(String(data="after"))
+    time.sleep(0.2)
+    assert got[-1][0] == "stop"
 
 
 def test_undeclaring_wakes_and_ends_a_waiting_receive_thread(make_context: Callable[..., Context]) -> None:

@@ -1,4 +1,4 @@
-"""A node's executor (one thread running its callbacks in order) and the rate-limited log of its errors."""
+"""A node's executor (its callbacks one at a time, in order, on its thread) and the rate-limited log of its errors."""
 
 from __future__ import annotations
 
@@ -36,30 +36,66 @@ class RateLimitedLogger:
 
 
 class Executor:
-    """One thread running a node's callbacks in order."""
+    """Runs a node's callbacks one at a time, in the order they were posted: on its own thread, or (see
+    :meth:`run_here`) on the thread that brings the work while the executor is idle."""
 
     def __init__(self, name: str, on_error: Callable[[str, BaseException], None]) -> None:
         self._queue: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
         self.post: Callable[[Callable[[], None]], None] = self._queue.put
         """Queue work for the thread (from any thread): the queue's own put, one call less for every sample."""
         self._on_error = on_error
+        self._running = threading.Lock()
+        """Held while a callback runs, on whichever thread: the node's callbacks run one at a time."""
+        self._guest: int | None = None
+        """The thread that runs a callback through :meth:`run_here` now (its ident), if any."""
+        self._stopped = False
         self._thread = threading.Thread(target=self._run, name=f"executor:{name}", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        get = self._queue.get
+        get, running = self._queue.get, self._running
         while True:
             work = get()
             if work is None:
                 return
-            try:
-                work()
-            except Exception as err:
-                self._on_error(getattr(work, "__qualname__", "callback"), err)
+            with running:
+                try:
+                    work()
+                except Exception as err:
+                    self._on_error(getattr(work, "__qualname__", "callback"), err)
+
+    def run_here(self, work: Callable[[], None]) -> bool:
+        """Run ``work`` on the calling thread at once if the executor is idle (nothing queued, no callback
+        running), else return False (the caller posts it).
+
+        A subscription's receive thread, awake with a lone sample, delivers it this way instead of waking the
+        executor's thread for it: one thread switch less per message (a 1 MB image's subscriber spent ~25 µs more
+        per message than raw Zenoh's callback thread, the most of it in that hand-off). Callbacks still run one at
+        a time. Work posted by another thread at the very moment the executor takes it from the queue may run
+        after this one: the two arrived together, and neither was first.
+        """
+        if self._stopped or not self._queue.empty() or not self._running.acquire(blocking=False):
+            return False
+        self._guest = threading.get_ident()
+        try:
+            work()
+        except Exception as err:
+            self._on_error(getattr(work, "__qualname__", "callback"), err)
+        finally:
+            self._guest = None
+            self._running.release()
+        return True
 
     def stop(self, timeout_s: float = 2.0) -> None:
+        self._stopped = True
         self._queue.put(None)
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout_s)
+        # A callback that stops its own node's executor (on either thread) returns before the thread ends; waiting
+        # here would wait for itself (the executor's thread may be waiting for the callback's turn to end).
+        if threading.current_thread() is self._thread or self._guest == threading.get_ident():
+            return
+        deadline = time.monotonic() + timeout_s
+        self._thread.join(timeout_s)
         if self._thread.is_alive():  # a long callback: the exit must still wait for it (see lifetime)
             join_at_exit(self._thread)
+        elif self._running.acquire(timeout=max(0.0, deadline - time.monotonic())):
+            self._running.release()  # a callback that ran on another thread (run_here) has ended too

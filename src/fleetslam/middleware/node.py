@@ -7,15 +7,18 @@ on the executor of :mod:`~fleetslam.middleware.executor`; they are re-exported h
 
 Threading:
 
-- every node owns one executor thread (named ``executor:<fq node name>``). All of a node's callbacks
-  (subscriptions, service handlers, timers, :meth:`Node.call_soon`) run on it, one at a time, in arrival order,
-  so a node's state needs no locks. Callbacks of different nodes run concurrently.
+- every node owns one executor (a thread named ``executor:<fq node name>``). All of a node's callbacks
+  (subscriptions, service handlers, timers, :meth:`Node.call_soon`) run one at a time, in arrival order, so a
+  node's state needs no locks; they run on the executor's thread, except a KEEP_LAST subscription's samples that
+  arrive while the executor is idle, whose receive thread runs a quick callback itself (see below). Callbacks of
+  different nodes run concurrently.
 - samples are received, checked and counted in the statistics on a receive thread per volatile KEEP_LAST
   subscription (fed by a Zenoh ring channel that drops the oldest when the thread falls behind, so Zenoh never
-  waits for Python; handed to the executor in batches) or on Zenoh's callback thread (KEEP_ALL, transient local),
-  and queued per subscription (KEEP_LAST depth: the oldest is dropped when the executor falls behind; KEEP_ALL:
-  unbounded). They are deserialized on the executor just before their callback, so samples dropped by KEEP_LAST
-  cost no decoding.
+  waits for Python; handed to the executor in batches, or, while the executor is idle and the subscription's
+  callback takes under 1 ms, delivered by the receive thread itself: no thread is woken for them) or on Zenoh's
+  callback thread (KEEP_ALL, transient local), and queued per subscription (KEEP_LAST depth: the oldest is dropped
+  when the executor falls behind; KEEP_ALL: unbounded). They are deserialized just before their callback, so
+  samples dropped by KEEP_LAST cost no decoding.
   A subscription created with ``inline=True`` skips the queue: its callback runs on Zenoh's thread (see
   :class:`Subscription`).
 - zero-copy: a received payload is copied once out of Zenoh; the message's numeric arrays are read-only NumPy
@@ -138,6 +141,8 @@ class Node:
         self._executor = Executor(self.fq_name, self._on_executor_error)
         self.executor_post = self._executor.post
         """:meth:`call_soon` without its own call (the subscriptions' hand-off of every sample)."""
+        self.executor_run_here = self._executor.run_here
+        """Run a callback on the calling thread if the executor is idle (see :meth:`Executor.run_here`)."""
         self._entities: list[Entity] = []
         self._timers: list[Timer] = []
         self._subscriptions: list[Subscription] = []

@@ -71,7 +71,12 @@ PARK_S = 0.005
 """How long the receive thread leaves the ring to an executor that takes nothing from it (a long callback, other
 work of the node) before it takes the ring back and goes on counting and queueing on its own."""
 _COPY_ON_EXECUTOR_BYTES = 1 << 16
-"""Payloads from this size on are copied out of Zenoh on the executor, not on Zenoh's thread (see _receive)."""
+"""Payloads from this size on are copied out of Zenoh where they are decoded, not on Zenoh's thread (see _receive)."""
+QUICK_CALLBACK_S = 0.001
+"""A KEEP_LAST subscription's receive thread delivers a lone sample itself, when the executor is idle, while the
+callback takes less than this per sample (see :meth:`Subscription._drain`): meanwhile nothing counts the samples
+that arrive, so a slower callback's samples go to the executor's thread."""
+_perf_counter = time.perf_counter
 
 
 def _accepts_info(callback: Callable[..., Any]) -> bool:
@@ -93,16 +98,22 @@ def _accepts_info(callback: Callable[..., Any]) -> bool:
 
 
 class Subscription(Entity):
-    """Receives messages of a topic; the callback runs on the node's executor.
+    """Receives messages of a topic; the callback runs on the node's executor, one callback of the node at a time.
 
     A volatile KEEP_LAST subscription takes its samples from a Zenoh ring channel (:data:`RECEIVE_RING_CAPACITY`):
-    Zenoh's threads never wait for Python. A receive thread of its own waits for the first sample and hands the
-    ring to the idle executor, which then takes the samples itself, checks, counts, decodes them and runs the
-    callback, at most :data:`DRAIN_BATCH` per turn (one thread doing all the Python work of a sample, no hand-off
-    per sample), until it finds the ring empty and the receive thread waits again. While the executor is busy
-    (a long callback, other work) the receive thread checks, counts and queues the samples itself (KEEP_LAST
-    ``depth``), so the callback gets the newest. When neither keeps up with the ring, Zenoh drops the oldest samples
-    before they are counted: /statistics sees them as sequence gaps (``dropped``), not as ``queue_overflows``.
+    Zenoh's threads never wait for Python. A receive thread of its own waits for a sample. While the node's
+    executor is idle and this subscription's callback is quick (under :data:`QUICK_CALLBACK_S` per sample the
+    last time it ran), the receive thread delivers the sample itself, and under a flood goes on taking the samples
+    from the ring as the executor would (:meth:`Executor.run_here`: no thread woken for them). Otherwise it checks,
+    counts and queues a lone sample for the executor; under a flood it hands the ring to the executor, which then
+    takes the samples itself, checks, counts, decodes them and runs the callback, at most :data:`DRAIN_BATCH` per
+    turn (one thread doing all the Python work of a sample, no hand-off per sample), until it finds the ring empty
+    and the receive thread waits again. While the executor is busy (a long callback, other work) the receive thread
+    checks, counts and queues the samples itself (KEEP_LAST ``depth``), so the callback gets the newest. While a
+    callback runs on the receive thread, the samples that arrive wait in the ring and are counted when it returns;
+    one that took longer than :data:`QUICK_CALLBACK_S` sends the next samples to the executor's thread. When
+    neither keeps up with the ring, Zenoh drops the oldest samples before they are counted: /statistics sees them
+    as sequence gaps (``dropped``), not as ``queue_overflows``.
     KEEP_ALL and transient-local subscriptions get each sample from Zenoh's callback thread (a FIFO channel that
     holds back reception when full) and hand it to the executor one by one.
 
@@ -142,6 +153,10 @@ class Subscription(Entity):
         self.inline = inline
         self._with_info = _accepts_info(callback)
         self._post = node.executor_post
+        self._run_here = node.executor_run_here
+        self._quick = False
+        """The last drain took less than QUICK_CALLBACK_S per sample: the receive thread may run the next itself
+        (unknown before the first, which therefore runs on the executor's thread)."""
         self._dispatch_bound = self._dispatch
         """Posted once per queued sample (one bound method for all of them, not one made per sample)."""
         self._pending: collections.deque[tuple[Any, MessageInfo]] = collections.deque(
@@ -225,8 +240,8 @@ class Subscription(Entity):
         # giving up the GIL), so KEEP_LAST keeps the newest and the statistics count the samples as they come.
         recv, try_recv, take = handler.recv, handler.try_recv, self._take
         self._try_recv = try_recv
-        ring_lock, handback, pending, post, drain = (
-            self._ring_lock, self._handback, self._pending, self._post, self._drain_bound
+        ring_lock, handback, pending, post, drain, run_here = (
+            self._ring_lock, self._handback, self._pending, self._post, self._drain_bound, self._run_here
         )  # fmt: skip
         stalled_at = -1
         """The executor's turns when it last stalled with the ring (it gets the ring again once it moves on)."""
@@ -240,6 +255,8 @@ class Subscription(Entity):
                         with ring_lock:  # a drain may start at once: it must find the ring its own
                             handback.clear()
                             self._executor_pulls = True
+                        if not self._posted and self._quick and run_here(drain) and not self._executor_pulls:
+                            continue  # the executor was idle: this thread delivered the burst and emptied the ring
                         if not self._posted:
                             self._posted = True
                             post(drain)
@@ -251,7 +268,7 @@ class Subscription(Entity):
                         if sample is None:
                             break
                         take(sample)
-                if pending and not self._posted:
+                if pending and not self._posted and not (self._quick and run_here(drain)):
                     self._posted = True
                     post(drain)
         except zenoh.ZError:
@@ -319,9 +336,10 @@ class Subscription(Entity):
         if self.inline:
             self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
             return False
-        # A large payload leaves Zenoh on the executor, where its copy is also freed: a buffer made on one thread
-        # and freed on another made glibc return and fault in its pages for every sample (1 MB: 2x the CPU of
-        # the receiving end). Zenoh reassembled it into a buffer of its own, so holding it pins nothing else.
+        # A large payload leaves Zenoh where it is decoded (the executor, or this thread delivering it itself), where
+        # its copy is also freed: a buffer made on one thread and freed on another made glibc return and fault in
+        # its pages for every sample (1 MB: 2x the CPU of the receiving end). Zenoh reassembled it into a buffer of
+        # its own, so holding it pins nothing else.
         payload: bytes | zenoh.ZBytes = zpayload if info.size >= _COPY_ON_EXECUTOR_BYTES else zpayload.to_bytes()
         pending = self._pending
         with self._pending_lock:
@@ -387,9 +405,17 @@ class Subscription(Entity):
         self.node.error_log.warning(f"{self.topic}:{cause}", message, *args)
 
     def _drain(self) -> None:
-        # On the executor: delivers what is queued, then, while the ring is the executor's, takes the samples from
-        # the ring itself; at most DRAIN_BATCH per turn, so the node's other callbacks (timers, services, other
-        # topics) still take their turns under a flood.
+        # On the executor (or, for a lone sample while the executor is idle, on the receive thread: run_here), timed:
+        # a callback slower than QUICK_CALLBACK_S per sample is left to the executor's thread from then on.
+        started = _perf_counter()
+        taken = self._drain_batch()
+        if taken:
+            self._quick = _perf_counter() - started < taken * QUICK_CALLBACK_S
+
+    def _drain_batch(self) -> int:
+        # Delivers what is queued, then, while the ring is the executor's, takes the samples from the ring itself;
+        # at most DRAIN_BATCH per turn, so the node's other callbacks (timers, services, other topics) still take
+        # their turns under a flood. Returns how many samples it took.
         self._posted = False  # cleared before looking at the queue: a sample queued after this posts again
         self._turns += 1
         pending, lock, deliver = self._pending, self._pending_lock, self._deliver
@@ -402,14 +428,15 @@ class Subscription(Entity):
                 budget -= 1
                 continue
             if not self._executor_pulls:
-                return
+                return DRAIN_BATCH - budget
             taken = self._pull(budget)
             if not taken:
-                return
+                return DRAIN_BATCH - budget
             budget -= taken
         if not self._posted and (pending or self._executor_pulls):
             self._posted = True
             self._post(self._drain_bound)
+        return DRAIN_BATCH
 
     def _pull(self, budget: int) -> int:
         """On the executor: take up to ``budget`` samples from the ring, check, count and deliver them (KEEP_LAST:
