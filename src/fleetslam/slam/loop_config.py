@@ -98,6 +98,12 @@ class LoopClosureConfig(ConfigModel):
     max_direction_disagreement_deg: float = Field(2.0, gt=0.0)
     """Rotation tolerance between the two PnP directions (degrees)."""
 
+    peer_min_inliers: int = Field(20, ge=4)
+    """Minimum PnP RANSAC inliers to accept a place recognised in another agent's map (collaborative SLAM; the
+    depth refinement then keeps ``ClosureQuality.min_kept_fraction`` of this). Kept at RTAB-Map's 20 when
+    ``min_inliers`` went to 12: a wrong closure between two agents' maps misplaces a whole map in the fleet's, and
+    12 was measured only on single-agent loops (where the pose graph's consistency check rejects the aliases)."""
+
 
 class MemoryConfig(ConfigModel):
     """Memory management: short-term memory, working memory, long-term memory (RTAB-Map Mem/* parameters)."""
