@@ -25,7 +25,8 @@ def feed(detector: LoopClosureDetector, rng: np.random.Generator, place: Place, 
 
 
 def first_session(rng: np.random.Generator) -> tuple[LoopClosureDetector, list[Place]]:
-    detector = make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(max_wm_size=12), CAMERA_MATRIX)
+    # 20 places, revisited from the 4th: a short-term memory of 10 (RTAB-Map's) leaves them loop candidates.
+    detector = make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(max_wm_size=12, stm_size=10), CAMERA_MATRIX)
     places = [make_place(rng, place_pose(k)) for k in range(20)]
     for k, place in enumerate(places):
         feed(detector, rng, place, place.pose, float(k))

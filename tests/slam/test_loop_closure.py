@@ -24,7 +24,8 @@ def feed(detector: LoopClosureDetector, rng: np.random.Generator, place: Place, 
 
 def test_planted_revisit_is_detected_and_new_places_are_not() -> None:
     rng = np.random.default_rng(10)
-    detector = make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(), CAMERA_MATRIX)
+    # 25 places, revisited from the 6th: a short-term memory of 10 (RTAB-Map's) leaves them loop candidates.
+    detector = make_loop_closure_detector(LoopClosureConfig(), MemoryConfig(stm_size=10), CAMERA_MATRIX)
     places = [make_place(rng, place_pose(k)) for k in range(25)]
     for k, place in enumerate(places):
         hyp = feed(detector, rng, place, place.pose, float(k))

@@ -84,6 +84,22 @@ def test_a_peer_view_of_a_known_place_is_recognised_with_its_transform() -> None
     assert np.sqrt(np.linalg.eigvalsh(result.match.covariance[:3, :3]).max()) < 0.03
 
 
+def test_a_peer_view_is_verified_with_its_own_inlier_count_not_the_loop_closures() -> None:
+    textures = make_textures(np.random.default_rng(3))
+    memory, ids = own_memory(textures, [camera_pose(0.0, 0.0, yaw) for yaw in (45.0, 135.0, 225.0, 315.0)])
+    peer_pose = camera_pose(-0.3, 0.2, 130.0)
+    keypoints, points, descriptors = features_of(peer_pose, PEER, textures)
+    summary = summarize("r2d2", 7, 0, peer_pose, PEER, keypoints, points, descriptors)
+
+    strict_peers = LoopClosureConfig(min_inliers=4, peer_min_inliers=10_000)
+    refused = make_peer_recognizer(strict_peers, memory, OWN.K).recognize(summary)
+    assert refused.match is None
+    assert any("(< 10000)" in reason for reason in refused.reasons), refused.reasons
+    strict_loops = LoopClosureConfig(min_inliers=10_000)  # the agent's own loops ask nothing of a peer's view
+    accepted = make_peer_recognizer(strict_loops, memory, OWN.K).recognize(summary)
+    assert accepted.match is not None and accepted.match.own_id == ids[1], accepted.reasons
+
+
 LOOKING_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 """Camera optical axes looking straight down at the floor."""
 

@@ -67,8 +67,15 @@ class LoopClosureConfig(ConfigModel):
     virtual_place_prior: float = Field(0.9, ge=0.0, le=1.0)
     """Probability that a 'new place' stays a new place (RTAB-Map Bayes/VirtualPlacePriorThr)."""
 
-    min_inliers: int = Field(20, ge=4)
-    """Minimum PnP RANSAC inliers to accept a loop closure (RTAB-Map Vis/MinInliers)."""
+    min_inliers: int = Field(12, ge=4)
+    """Minimum PnP RANSAC inliers to accept a loop closure or a relocalisation (RTAB-Map Vis/MinInliers, whose
+    default is 20). 12, with ``memory.stm_size=30``: at 320×240 a revisit from another heading (the hand-held figure
+    eight at 30 Hz coming back to its start) shares only 7–19 correspondences with depth, so 20 accepted 2 loops
+    there (4.60 cm ATE, the odometry's drift) and 12 accepts 14 (2.35 cm); the 12 procedural hand-held 320×240 cells
+    of the benchmark matrix: 11 within 3 cm instead of 10, mean 2.33 → 2.06 cm, worst 4.60 → 3.04 cm. Alone, 12 also
+    admitted loops to keyframes just out of the short-term memory, up to 2.8° off the truth (see ``stm_size``).
+    The count does not tell an alias from a true loop (a rack 4 m further on passes with 42 inliers and both PnP
+    directions within 1 cm): the pose graph's consistency check (``backend.optimize_max_error``) rejects those."""
 
     pnp_reprojection_error: float = Field(2.0, gt=0.0)
     """PnP RANSAC inlier threshold in pixels (RTAB-Map Vis/PnPReprojError)."""
@@ -91,12 +98,23 @@ class LoopClosureConfig(ConfigModel):
     max_direction_disagreement_deg: float = Field(2.0, gt=0.0)
     """Rotation tolerance between the two PnP directions (degrees)."""
 
+    peer_min_inliers: int = Field(20, ge=4)
+    """Minimum PnP RANSAC inliers to accept a place recognised in another agent's map (collaborative SLAM; the
+    depth refinement then keeps ``ClosureQuality.min_kept_fraction`` of this). Kept at RTAB-Map's 20 when
+    ``min_inliers`` went to 12: a wrong closure between two agents' maps misplaces a whole map in the fleet's, and
+    12 was measured only on single-agent loops (where the pose graph's consistency check rejects the aliases)."""
+
 
 class MemoryConfig(ConfigModel):
     """Memory management: short-term memory, working memory, long-term memory (RTAB-Map Mem/* parameters)."""
 
-    stm_size: int = Field(10, ge=1)
-    """Number of most recent locations kept in the short-term memory, never loop candidates (Mem/STMSize)."""
+    stm_size: int = Field(30, ge=1)
+    """Number of most recent locations kept in the short-term memory, never loop candidates (Mem/STMSize, whose
+    default is 10 at RTAB-Map's 1 Hz detection rate: 10 s of motion). Keyframes here come every 1–3 frames, so 10
+    is well under a second at 30 Hz; loops to keyframes 10–13 back (0.2–0.7 m away) were off the truth by up to
+    7.6 cm and 2.8° with ``loop_closure.min_inliers=12`` — worse than the odometry over that span (under 1.5 cm) —
+    and 30 keeps them out: the worst loop the pose graph kept on the 12 procedural hand-held 320×240 cells went
+    from 7.6 cm / 2.8° to 6.5 cm / 1.7° (with 20 inliers and 10: 8.2 cm / 1.7°)."""
 
     rehearsal_similarity: float = Field(0.6, ge=0.0, le=1.0)
     """Similarity of word sets above which a new location is merged with the previous one (weight update,

@@ -340,14 +340,14 @@ def make_peer_recognizer(
     min_off_plane: int = MIN_OFF_PLANE_INLIERS,
     quality: ClosureQuality | None = ClosureQuality(),
 ) -> PeerPlaceRecognizer:
-    """A recognizer over ``memory`` that verifies as the agent's own loop closure does (same inlier count,
-    reprojection error, both PnP directions), between camera frames, and rejects a match with fewer than
-    ``min_off_plane`` inliers off the plane that holds most of them (see :data:`MIN_OFF_PLANE_INLIERS`); then
-    refines it with depth and judges its precision (``quality``, see :func:`refine_closure`; None: neither)."""
+    """A recognizer over ``memory`` that verifies as the agent's own loop closure does (reprojection error, both PnP
+    directions; its own inlier count, ``loop.peer_min_inliers``), between camera frames, and rejects a match with
+    fewer than ``min_off_plane`` inliers off the plane that holds most of them (see :data:`MIN_OFF_PLANE_INLIERS`);
+    then refines it with depth and judges its precision (``quality``, see :func:`refine_closure`; None: neither)."""
     verifier = GeometricVerifier(
         camera_matrix,
         None,
-        min_inliers=loop.min_inliers,
+        min_inliers=loop.peer_min_inliers,
         reprojection_error=loop.pnp_reprojection_error,
         iterations=loop.pnp_iterations,
         max_depth=loop.pnp_max_depth,
