@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile
+from fleetslam.middleware import Context, MessageInfo, Node, QoSProfile, lifetime
 from fleetslam.middleware.executor import Executor
 from fleetslam.msg.typesys import get_type
 
@@ -91,6 +91,7 @@ def test_stop_from_its_own_callback_ends_the_thread_after_what_was_queued_before
 
     def stop_then_post() -> None:
         executor.stop()  # from the executor's own thread: returns at once, the thread ends after this callback
+        ran.append(f"exit waits for it: {executor._thread in lifetime._finishing}")
         executor.post(lambda: ran.append("posted after stop"))
 
     release = threading.Event()
@@ -99,7 +100,7 @@ def test_stop_from_its_own_callback_ends_the_thread_after_what_was_queued_before
     executor.post(lambda: ran.append("queued before stop"))
     release.set()
     assert wait_until(lambda: not executor._thread.is_alive())
-    assert ran == ["queued before stop"]
+    assert ran == ["exit waits for it: True", "queued before stop"]
 
 
 def test_run_here_runs_on_the_calling_thread_only_while_the_executor_is_idle() -> None:

@@ -91,11 +91,11 @@ class Executor:
         self._queue.put(None)
         # A callback that stops its own node's executor (on either thread) returns before the thread ends; waiting
         # here would wait for itself (the executor's thread may be waiting for the callback's turn to end).
-        if threading.current_thread() is self._thread or self._guest == threading.get_ident():
-            return
+        from_callback = threading.current_thread() is self._thread or self._guest == threading.get_ident()
         deadline = time.monotonic() + timeout_s
-        self._thread.join(timeout_s)
-        if self._thread.is_alive():  # a long callback: the exit must still wait for it (see lifetime)
+        if not from_callback:
+            self._thread.join(timeout_s)
+        if self._thread.is_alive():  # a long callback, or this one: the exit must still wait for it (see lifetime)
             join_at_exit(self._thread)
-        elif self._running.acquire(timeout=max(0.0, deadline - time.monotonic())):
+        elif not from_callback and self._running.acquire(timeout=max(0.0, deadline - time.monotonic())):
             self._running.release()  # a callback that ran on another thread (run_here) has ended too
