@@ -23,6 +23,14 @@ def test_depth_to_points_back_projects_a_flat_wall() -> None:
     assert len(points) == 32 * 24 - 1
 
 
+@pytest.mark.parametrize(
+    ("fx", "fy", "cx"), [(0.0, 50.0, 32.0), (50.0, -50.0, 32.0), (float("nan"), 50.0, 32.0), (50.0, 50.0, float("inf"))]
+)
+def test_depth_to_points_refuses_intrinsics_that_are_not_a_camera(fx: float, fy: float, cx: float) -> None:
+    with pytest.raises(ValueError, match=f"fx={fx}, fy={fy}, cx={cx}"):
+        depth_to_points(_wall_depth(2.0), fx, fy, cx, 24.0, stride=2)
+
+
 def test_map_follows_reoptimised_poses_without_doubled_walls() -> None:
     mapper = KeyframeMapper(MappingConfig(resolution=0.1))
     points = depth_to_points(_wall_depth(2.0), 50.0, 50.0, 32.0, 24.0, stride=2)

@@ -179,7 +179,7 @@ def test_save_requests_naming_anything_but_a_file_in_the_maps_directory_are_refu
     assert response.success and Path(response.path) == maps / "map.bt", response.message
 
 
-def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
+def test_a_keyframe_or_graph_with_a_nan_pose_or_no_focal_length_is_left_out_and_the_map_goes_on(
     make_context: Callable[..., Context], tmp_path: Path
 ) -> None:
     mapping = MappingNode(Node("mapping", context=make_context("c3po")),
@@ -200,13 +200,17 @@ def test_a_keyframe_or_graph_with_a_nan_pose_is_left_out_and_the_map_goes_on(
     zero_rotation.pose.orientation.x = zero_rotation.pose.orientation.y = 0.0
     zero_rotation.pose.orientation.z = zero_rotation.pose.orientation.w = 0.0
     keyframes.publish(zero_rotation)
-    assert wait_until(lambda: mapping.rejected == 2, 10.0), mapping.rejected
+    no_focal_length = _keyframe(4, camera, 2.0)
+    no_focal_length.camera_info.k[0] = 0.0  # every point would be infinite
+    keyframes.publish(no_focal_length)
+    assert wait_until(lambda: mapping.rejected == 3, 10.0), mapping.rejected
+    assert 4 not in mapping.mapper.scans
     keyframes.publish(_keyframe(2, camera, 2.0))
     assert wait_until(lambda: bool(clouds) and clouds[-1].width > 100, 10.0)  # the map still grows
     bad_graph = _graph({2: camera}, 1)
     bad_graph.poses[0].position.z = float("inf")
     graph.publish(bad_graph)
-    assert wait_until(lambda: mapping.rejected == 3, 10.0), mapping.rejected
+    assert wait_until(lambda: mapping.rejected == 4, 10.0), mapping.rejected
     np.testing.assert_allclose(mapping.mapper.scans[2].pose, camera)  # the bad graph changed nothing
     keyframes.publish(_keyframe(3, pose_from_planar(0.5, 0.0, 0.0) @ camera, 2.0))  # and later keyframes count
     assert wait_until(lambda: mapping.mapper.pending == 0 and 3 in mapping.mapper.scans, 10.0)

@@ -37,7 +37,11 @@ def depth_to_points(
     min_depth: float = 0.3,
     max_depth: float = 6.0,
 ) -> NDArray[np.float32]:
-    """Camera-frame points (x right, y down, z forward) of every ``stride``-th pixel with a valid depth."""
+    """Camera-frame points (x right, y down, z forward) of every ``stride``-th pixel with a valid depth. Raises
+    ValueError, naming the values, for focal lengths that are not positive and finite or a principal point that is
+    not finite (a hostile or broken camera_info: its points would all be infinite, or mirrored)."""
+    if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
+        raise ValueError(f"camera intrinsics fx={fx}, fy={fy}, cx={cx}, cy={cy}: focal lengths must be positive")
     depth = np.asarray(depth_m, dtype=np.float32)[::stride, ::stride]
     vs, us = np.mgrid[0 : depth_m.shape[0] : stride, 0 : depth_m.shape[1] : stride]
     valid = np.isfinite(depth) & (depth >= min_depth) & (depth <= max_depth)

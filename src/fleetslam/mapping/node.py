@@ -208,16 +208,16 @@ class MappingNode:
         if depth is None:
             return
         k = msg.camera_info.k
-        points = depth_to_points(
-            depth, float(k[0]), float(k[4]), float(k[2]), float(k[5]), stride=self.config.pixel_stride,
-            max_depth=self.config.max_depth,
-        )  # fmt: skip
         try:
+            points = depth_to_points(
+                depth, float(k[0]), float(k[4]), float(k[2]), float(k[5]), stride=self.config.pixel_stride,
+                max_depth=self.config.max_depth,
+            )  # fmt: skip
             # Following the fleet: a keyframe newer than the graph continues from the newest corrected one (its
             # graph pose, handed to the mapper before it came, wins as always).
             pose = pose_matrix(msg.pose)
             self.mapper.add_keyframe(int(msg.id), points, self._chain @ pose if self.fleet.active else pose)
-        except ValueError as err:  # a NaN position, a zero quaternion: this keyframe is left out, the map goes on
+        except ValueError as err:  # a NaN position, a zero quaternion, a zero focal length: this keyframe is left out
             self._reject(f"keyframe {msg.id} from {msg.agent!r}", err)
 
     def _reject(self, what: str, err: Exception) -> None:
