@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node, Publisher, QoSProfile, Subscription
 from fleetslam.msg.typesys import get_type
 
 from ..support import wait_until
@@ -97,23 +97,18 @@ def test_a_nodes_callbacks_run_one_at_a_time(make_context: Callable[..., Context
         assert values == sorted(values)  # in arrival order
 
 
-def test_a_slow_callback_goes_back_to_the_executor_and_a_quick_one_to_the_receive_thread(
-    make_context: Callable[..., Context],
-) -> None:
+def _lone_samples(
+    make_context: Callable[..., Context], topic: str, on_message: Callable[[Any], None], got: list[tuple[str, str]]
+) -> tuple[Node, Subscription, Publisher, Callable[[str], str]]:
+    """A listener node subscribed to ``topic``, a talker's publisher of it, and ``send(data)``: publish one sample,
+    wait until ``on_message`` has appended it to ``got`` as (data, thread name), let the executor go idle again,
+    return that thread's name."""
     talker = Node("talker", context=make_context(), statistics_period_s=0)
     node = Node("listener", context=make_context(), statistics_period_s=0)
-    got: list[tuple[str, str]] = []
-
-    def on_message(msg: Any) -> None:
-        if msg.data.startswith("slow"):
-            time.sleep(0.005)  # over QUICK_CALLBACK_S
-        got.append((msg.data, threading.current_thread().name))
-
-    sub = node.create_subscription("std_msgs/msg/String", "/pace", on_message, QoSProfile(depth=10))
-    pub = talker.create_publisher("std_msgs/msg/String", "/pace")
+    sub = node.create_subscription("std_msgs/msg/String", topic, on_message, QoSProfile(depth=10))
+    pub = talker.create_publisher("std_msgs/msg/String", topic)
     assert wait_until(lambda: pub.matched_subscriptions == 1)
     time.sleep(0.1)
-    receiver, executor = sub._receiver.name, f"executor:{node.fq_name}"  # type: ignore[union-attr]
 
     def send(data: str) -> str:
         pub.publish(String(data=data))
@@ -121,6 +116,21 @@ def test_a_slow_callback_goes_back_to_the_executor_and_a_quick_one_to_the_receiv
         time.sleep(0.01)  # a lone sample each: the executor is idle again
         return got[-1][1]
 
+    return node, sub, pub, send
+
+
+def test_a_slow_callback_goes_back_to_the_executor_and_a_quick_one_to_the_receive_thread(
+    make_context: Callable[..., Context],
+) -> None:
+    got: list[tuple[str, str]] = []
+
+    def on_message(msg: Any) -> None:
+        if msg.data.startswith("slow"):
+            time.sleep(0.005)  # over QUICK_CALLBACK_S
+        got.append((msg.data, threading.current_thread().name))
+
+    node, sub, _, send = _lone_samples(make_context, "/pace", on_message, got)
+    receiver, executor = sub._receiver.name, f"executor:{node.fq_name}"  # type: ignore[union-attr]
     for round_ in range(3):
         # Quick callbacks move to the receive thread (a quick one measured over 1 ms on a loaded machine delays
         # that by a sample: try a few).
@@ -133,8 +143,6 @@ def test_a_slow_callback_goes_back_to_the_executor_and_a_quick_one_to_the_receiv
 def test_a_callback_on_the_receive_thread_may_destroy_its_subscription_and_its_node(
     make_context: Callable[..., Context],
 ) -> None:
-    talker = Node("talker", context=make_context(), statistics_period_s=0)
-    node = Node("listener", context=make_context(), statistics_period_s=0)
     got: list[tuple[str, str]] = []
 
     def on_message(msg: Any) -> None:
@@ -143,25 +151,15 @@ def test_a_callback_on_the_receive_thread_may_destroy_its_subscription_and_its_n
             sub.destroy()
             node.destroy()  # stops the executor: must not wait for this very callback
 
-    sub = node.create_subscription("std_msgs/msg/String", "/end", on_message, QoSProfile(depth=10))
-    pub = talker.create_publisher("std_msgs/msg/String", "/end")
-    assert wait_until(lambda: pub.matched_subscriptions == 1)
-    time.sleep(0.1)
+    node, sub, pub, send = _lone_samples(make_context, "/end", on_message, got)
     receiver = sub._receiver
     assert receiver is not None
-    for k in range(20):  # until the receive thread delivers them (the first goes to the executor)
-        pub.publish(String(data=str(k)))
-        assert wait_until(lambda k=k: len(got) == k + 1, timeout_s=2.0)
-        time.sleep(0.01)
-        if got[-1][1] == receiver.name:
-            break
-    assert got[-1][1] == receiver.name
+    # Until the receive thread delivers them (the first goes to the executor).
+    assert any(send(str(k)) == receiver.name for k in range(20))
     started = time.monotonic()
-    pub.publish(String(data="stop"))
-    assert wait_until(lambda: got[-1][0] == "stop", timeout_s=2.0)
+    assert send("stop") == receiver.name
     assert wait_until(lambda: not receiver.is_alive() and not node._executor._thread.is_alive(), 2.0)
     assert time.monotonic() - started < 1.5  # no wait for itself (the executor's stop waits up to 2 s)
-    assert got[-1][1] == receiver.name
     pub.publish(String(data="after"))
     time.sleep(0.2)
     assert got[-1][0] == "stop"
@@ -241,7 +239,7 @@ def test_a_stalled_node_does_not_hold_back_its_session(make_context: Callable[..
 
 FLOODER = """
 import sys, time
-from fleetslam.middleware import Context, Node, QoSProfile
+from fleetslam.middleware import Context, Node, Publisher, QoSProfile, Subscription
 from fleetslam.msg.typesys import get_type, serialize
 with Context(statistics=False) as context:
     node = Node("flooder", context=context, statistics_period_s=0)

@@ -53,16 +53,20 @@ class Executor:
         self._thread.start()
 
     def _run(self) -> None:
-        get, running = self._queue.get, self._running
+        get, running, call = self._queue.get, self._running, self._call
         while True:
             work = get()
             if work is None:
                 return
             with running:
-                try:
-                    work()
-                except Exception as err:
-                    self._on_error(getattr(work, "__qualname__", "callback"), err)
+                call(work)
+
+    def _call(self, work: Callable[[], None]) -> None:
+        """Run one callback; what it raises is reported, never passed on (on either thread)."""
+        try:
+            work()
+        except Exception as err:
+            self._on_error(getattr(work, "__qualname__", "callback"), err)
 
     def run_here(self, work: Callable[[], None]) -> bool:
         """Run ``work`` on the calling thread at once if the executor is idle (nothing queued, no callback
@@ -78,9 +82,7 @@ class Executor:
             return False
         self._guest = threading.get_ident()
         try:
-            work()
-        except Exception as err:
-            self._on_error(getattr(work, "__qualname__", "callback"), err)
+            self._call(work)
         finally:
             self._guest = None
             self._running.release()

@@ -73,9 +73,9 @@ work of the node) before it takes the ring back and goes on counting and queuein
 _COPY_ON_EXECUTOR_BYTES = 1 << 16
 """Payloads from this size on are copied out of Zenoh where they are decoded, not on Zenoh's thread (see _receive)."""
 QUICK_CALLBACK_S = 0.001
-"""A KEEP_LAST subscription's receive thread delivers a lone sample itself, when the executor is idle, while the
-callback takes less than this per sample (see :meth:`Subscription._drain`): meanwhile nothing counts the samples
-that arrive, so a slower callback's samples go to the executor's thread."""
+"""A KEEP_LAST subscription's receive thread delivers samples itself (a lone one, or a burst), when the executor is
+idle, while the callback takes less than this per sample (see :meth:`Subscription._drain`): meanwhile nothing
+counts the samples that arrive, so a slower callback's samples go to the executor's thread."""
 _perf_counter = time.perf_counter
 
 
@@ -405,7 +405,7 @@ class Subscription(Entity):
         self.node.error_log.warning(f"{self.topic}:{cause}", message, *args)
 
     def _drain(self) -> None:
-        # On the executor (or, for a lone sample while the executor is idle, on the receive thread: run_here), timed:
+        # On the executor (or, while the executor is idle, on the receive thread: run_here), timed:
         # a callback slower than QUICK_CALLBACK_S per sample is left to the executor's thread from then on.
         started = _perf_counter()
         taken = self._drain_batch()
