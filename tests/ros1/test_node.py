@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
 import socket
 import struct
 import subprocess
@@ -61,6 +63,27 @@ def test_registers_again_when_the_master_restarts(roscore: Master) -> None:
         # roscore restarts in ~3 s on a quiet machine, several times that beside a running demo.
         assert wait_until(lambda: node.registrations == 2, timeout_s=30)
         assert 'data: "again"' in _echo_once(roscore, "/after_restart")
+
+
+def test_a_master_that_stalls_and_answers_again_is_not_a_restart(
+    roscore: Master, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A loaded master misses the watchdog's 2 s getPid and answers again, still holding our registrations:
+    # registering again would count a restart that never happened (and made the restart test above flaky).
+    need_ros1("rostopic")
+    caplog.set_level(logging.INFO, logger="fleetslam.ros1.node")
+    with Ros1Node("patient", master_uri=roscore.uri, watchdog_period_s=0.2) as node:
+        pub = node.advertise("/through_a_stall", STRING, latch=True)
+        pub.publish(_string("kept"))
+        master_pid = int(xmlrpc.client.ServerProxy(roscore.uri).getPid("/test")[2])
+        os.kill(master_pid, signal.SIGSTOP)
+        try:
+            assert wait_until(lambda: "lost" in caplog.text, timeout_s=30)
+        finally:
+            os.kill(master_pid, signal.SIGCONT)
+        assert wait_until(lambda: "answers again" in caplog.text, timeout_s=30)
+        assert node.registrations == 1
+        assert 'data: "kept"' in _echo_once(roscore, "/through_a_stall")
 
 
 def test_malformed_xmlrpc_and_bogus_publisher_updates_are_survived(roscore: Master) -> None:

@@ -531,21 +531,27 @@ class Ros1Node:
                     log.warning("ROS master at %s lost (%s); waiting for it to come back", self.master_uri, err)
                 self._master_up = False
                 continue
-            if pid != self._master_pid or not self._master_up:
-                log.info("ROS master at %s is back (pid %d); registering again", self.master_uri, pid)
-                try:
-                    for pub in list(self.publishers.values()):
-                        self._register_publisher(pub)
-                    for sub in list(self.subscriptions.values()):
-                        self._register_subscriber(sub)
-                    for server in list(self.services.values()):
-                        self._register_service(server)
-                except MiddlewareError as err:
-                    log.warning("registering again with %s failed: %s", self.master_uri, err)
-                    continue
-                self._master_pid = pid
+            if pid == self._master_pid:
+                # The same master process (a busy master times out, and answers again): it still holds our
+                # registrations, and registering again would only count a restart that did not happen.
+                if not self._master_up:
+                    log.info("ROS master at %s answers again (same pid %d)", self.master_uri, pid)
                 self._master_up = True
-                self.registrations += 1
+                continue
+            log.info("ROS master at %s is back (pid %d); registering again", self.master_uri, pid)
+            try:
+                for pub in list(self.publishers.values()):
+                    self._register_publisher(pub)
+                for sub in list(self.subscriptions.values()):
+                    self._register_subscriber(sub)
+                for server in list(self.services.values()):
+                    self._register_service(server)
+            except MiddlewareError as err:
+                log.warning("registering again with %s failed: %s", self.master_uri, err)
+                continue
+            self._master_pid = pid
+            self._master_up = True
+            self.registrations += 1
 
     # -- inbound TCPROS (subscribers of our publishers) -------------------------------------------------------
     def _accept(self) -> None:
