@@ -13,7 +13,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Intrinsics"]
+__all__ = ["Intrinsics", "pinhole_problem"]
+
+
+def pinhole_problem(fx: float, fy: float, cx: float, cy: float) -> str | None:
+    """What makes these values not a pinhole camera, or None. Received intrinsics are checked with it before anything
+    is back-projected: a zero focal length makes every point infinite, a negative one mirrors them."""
+    values = f"fx={fx}, fy={fy}, cx={cx}, cy={cy}"
+    if not np.isfinite([fx, fy, cx, cy]).all():
+        return f"{values}: not all finite"
+    if fx <= 0 or fy <= 0:
+        return f"{values}: focal lengths must be positive"
+    return None
 
 
 @dataclass(frozen=True)

@@ -102,6 +102,25 @@ def test_camera_info_round_trip() -> None:
     np.testing.assert_array_equal(np.asarray(msg.p).reshape(3, 4)[:, :3], intrinsics.K)  # type: ignore[attr-defined]
 
 
+@pytest.mark.parametrize(
+    ("k_values", "size", "named"),
+    [
+        ([0.0] * 9, (640, 480), "focal lengths must be positive"),  # ROS's "uncalibrated"
+        ([-500.0, 0, 320, 0, 500, 240, 0, 0, 1], (640, 480), "fx=-500.0"),
+        ([500.0, 0, float("nan"), 0, 500, 240, 0, 0, 1], (640, 480), "not all finite"),
+        ([500.0, 0, 320, 0, 500, 240, 0, 0, 1], (0, 480), "size 0x480"),
+    ],
+)
+def test_camera_info_that_is_not_a_camera_is_refused_naming_the_values(
+    k_values: list[float], size: tuple[int, int], named: str
+) -> None:
+    msg = cv.camera_info_msg(Intrinsics(500.0, 500.0, 320.0, 240.0), frame_id="cam", stamp_ns=5)
+    msg.k = np.array(k_values, dtype=np.float64)
+    msg.width, msg.height = size
+    with pytest.raises(MessageError, match=named):
+        cv.intrinsics_from_camera_info(_wire(msg, "sensor_msgs/msg/CameraInfo"))
+
+
 # -- poses, TF and odometry ------------------------------------------------------------------------------------
 def test_pose_and_transform_round_trip() -> None:
     poses = [random_pose(RNG, 5.0) for _ in range(20)]

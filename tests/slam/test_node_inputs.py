@@ -76,9 +76,15 @@ def test_wheel_poses_become_priors_and_malformed_ones_are_ignored(make_context: 
     # its prior, a ground robot facing a blank wall would be lost instead of coasting. Once the wheels have been
     # silent for wheels_gone_after (2 s), frames go on without them.
     assert not slam.wheels_behind(1.55) and slam.wheels_behind(2.5) and not slam.wheels_behind(5.0)
+    uncalibrated = message_from_dict("sensor_msgs/msg/CameraInfo", {"width": 320, "height": 240})  # k all zero
+    slam.on_camera_info(uncalibrated)  # ignored and counted: a pipeline started on it would never see a point
+    assert slam.pipeline is None and slam.camera_info is None and slam.bad_inputs == 4
     info = message_from_dict("sensor_msgs/msg/CameraInfo", {"width": 320, "height": 240})
     info.k[:] = [262.5, 0.0, 159.5, 0.0, 262.5, 119.5, 0.0, 0.0, 1.0]
     slam.on_camera_info(info)
+    slam.on_camera_info(uncalibrated)  # nor does a later one replace the intrinsics the keyframes carry
+    assert slam.camera_info is info and slam.bad_inputs == 5
+    assert slam.pipeline is not None and slam.pipeline.intrinsics.fx == 262.5
     assert slam.process(FramePair(round(2.5e9), None, None, time.monotonic())) is None  # images never decoded
     assert slam.counts["late_wheel_frames"] == 1 and slam.frames == 0
     # A frame older than every wheel pose held (a late sample from the camera's start, the robot since driven on) is

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from fleetslam.datasets.base import Intrinsics
 from fleetslam.errors import MessageError
+from fleetslam.intrinsics import pinhole_problem
 
 KEYPOINT_SUBPIXELS = 8
 """Keypoints are sent in 1/8 pixel: the rounding error (≤ 1/16 px) is far below a keypoint's own noise."""
@@ -154,12 +155,12 @@ def summary_from_message(msg: Any, pose: NDArray[np.float64], stamp_ns: int) -> 
     agent = str(msg.agent)
     where = f"KeyframeSummary from {agent!r} (keyframe {int(msg.id)})"
     intrinsics_values = np.asarray(msg.intrinsics, dtype=np.float64).reshape(-1)
-    if intrinsics_values.shape != (4,) or not np.isfinite(intrinsics_values).all():
-        raise MessageError(f"{where}: intrinsics must be four finite numbers, got {intrinsics_values.tolist()}")
+    if intrinsics_values.shape != (4,):
+        raise MessageError(f"{where}: intrinsics must be four numbers, got {intrinsics_values.tolist()}")
     fx, fy, cx, cy = (float(v) for v in intrinsics_values)
+    if problem := pinhole_problem(fx, fy, cx, cy):
+        raise MessageError(f"{where}: intrinsics: {problem}")
     width, height = int(msg.width), int(msg.height)
-    if fx <= 0 or fy <= 0:
-        raise MessageError(f"{where}: focal lengths must be positive, got fx={fx}, fy={fy}")
     if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
         raise MessageError(f"{where}: image size {width}x{height} is not in 1..{MAX_IMAGE_SIDE}")
     if not np.isfinite(pose).all():

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fleetslam.geometry import transform_points
+from fleetslam.intrinsics import pinhole_problem
 from fleetslam.mapping import _kernels as K
 from fleetslam.mapping.config import MappingConfig, make_octree
 from fleetslam.mapping.keys import TREE_MAX_VAL
@@ -40,8 +41,8 @@ def depth_to_points(
     """Camera-frame points (x right, y down, z forward) of every ``stride``-th pixel with a valid depth. Raises
     ValueError, naming the values, for focal lengths that are not positive and finite or a principal point that is
     not finite (a hostile or broken camera_info: its points would all be infinite, or mirrored)."""
-    if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
-        raise ValueError(f"camera intrinsics fx={fx}, fy={fy}, cx={cx}, cy={cy}: focal lengths must be positive")
+    if problem := pinhole_problem(fx, fy, cx, cy):
+        raise ValueError(f"camera intrinsics: {problem}")
     depth = np.asarray(depth_m, dtype=np.float32)[::stride, ::stride]
     vs, us = np.mgrid[0 : depth_m.shape[0] : stride, 0 : depth_m.shape[1] : stride]
     valid = np.isfinite(depth) & (depth >= min_depth) & (depth <= max_depth)

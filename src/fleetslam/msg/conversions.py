@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fleetslam.errors import MessageError
 from fleetslam.geometry import pose_from_quat, pose_to_quat
-from fleetslam.intrinsics import Intrinsics
+from fleetslam.intrinsics import Intrinsics, pinhole_problem
 from fleetslam.msg.typesys import get_type, header
 
 __all__ = [
@@ -319,7 +319,14 @@ def intrinsics_from_camera_info(msg: Any) -> Intrinsics:
     k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
     if k.size != 9:
         raise MessageError(f"CameraInfo k has {k.size} values, expected 9")
-    return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height))
+    fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
+    # k all zero is ROS's "uncalibrated": nothing can be back-projected with it either.
+    if problem := pinhole_problem(fx, fy, cx, cy):
+        raise MessageError(f"CameraInfo k: {problem}")
+    width, height = int(msg.width), int(msg.height)
+    if width <= 0 or height <= 0:
+        raise MessageError(f"CameraInfo size {width}x{height}: width and height must be positive")
+    return Intrinsics(fx, fy, cx, cy, width, height)
 
 
 # -- point clouds --------------------------------------------------------------------------------------------

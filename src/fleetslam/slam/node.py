@@ -278,12 +278,18 @@ class SlamNode:
 
     # -- inputs -------------------------------------------------------------------------------------------------
     def on_camera_info(self, msg: Any) -> None:
-        with self._lock:
-            self._start_pipeline(msg)
+        try:
+            with self._lock:
+                self._start_pipeline(msg)
+        except MessageError as err:  # the pipeline starts with the first camera_info that is a camera
+            self.bad_inputs += 1
+            if self.bad_inputs in (1, 10, 100) or self.bad_inputs % 1000 == 0:
+                log.warning("%s: %s (%d bad inputs ignored)", self.agent, err, self.bad_inputs)
 
     def _start_pipeline(self, msg: Any) -> None:
+        # Every camera_info is checked, not only the first: the newest is the one the keyframes carry.
+        intrinsics = intrinsics_from_camera_info(msg)
         if self.pipeline is None:
-            intrinsics = intrinsics_from_camera_info(msg)
             self.pipeline = SlamPipeline(self.config.slam, intrinsics=intrinsics, base_camera=self.base_camera)
             log.info("%s: SLAM started with fx=%.1f at %dx%d", self.agent, intrinsics.fx, msg.width, msg.height)
         self.camera_info = msg
