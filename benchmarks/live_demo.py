@@ -9,6 +9,7 @@ Peer: the same run's ground-truth-free baseline, each robot's wheel odometry (wh
 SLAM), so the ratio says what SLAM adds under load. Target: ATE ≤ 3.0 cm for every robot in a 300 s run.
 
 Usage: python benchmarks/live_demo.py [--duration 300] [--no-browser] [--out DIR] [--port 8090]
+       [--resolution 320x240] [--camera-hz 10] [--route loop] [--known-starts]  (the demo's defaults)
 """
 
 from __future__ import annotations
@@ -131,6 +132,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-browser", action="store_true", help="headless demo, no console")
     parser.add_argument("--out", type=Path, default=Path("results/benchmarks/live_demo"))
     parser.add_argument("--port", type=int, default=0, help="console port (default: a free one)")
+    # The demo's operating point (its defaults when not given): the target holds at the others too.
+    parser.add_argument("--resolution", default="320x240", help="simulated camera resolution WxH")
+    parser.add_argument("--camera-hz", type=float, default=10.0, help="simulated camera rate")
+    parser.add_argument("--route", default="loop", help="route every robot patrols (fleetslam robot routes)")
+    parser.add_argument("--known-starts", action="store_true", help="robots start apart, start poses given")
     args = parser.parse_args(argv)
     from fleetslam.launch.demo import run_demo
 
@@ -159,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     result = run_demo(
         robots=["c3po", "r2d2"], duration_s=args.duration, out_dir=args.out, port=port,
         router_port=_free_port(), headless=args.no_browser, output=sys.stderr, console_token=token,
+        resolution=args.resolution, camera_hz=args.camera_hz, route=args.route, known_starts=args.known_starts,
     )  # fmt: skip
     busy_end, total_end = machine_cpu()
     stop_browser.set()
@@ -170,6 +177,10 @@ def main(argv: list[str] | None = None) -> int:
         "duration_s": round(result.duration_s, 1),
         "wall_s": round(time.time() - started, 1),
         "browser": not args.no_browser,
+        "resolution": args.resolution,
+        "camera_hz": args.camera_hz,
+        "route": args.route,
+        "known_starts": args.known_starts,
         "browser_log": browser_log,
         "ate_cm": {robot: round(value * 100, 2) for robot, value in sorted(result.ate.items())},
         "ate_live_cm": {robot: round(value * 100, 2) for robot, value in sorted(result.ate_live.items())},
