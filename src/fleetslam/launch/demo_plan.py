@@ -15,9 +15,12 @@ from fleetslam.launch.description import ProcessSpec, RestartPolicy
 #: Where each demo robot drives (centre of its circle), so the two agents' maps sit side by side.
 ROBOT_CENTERS = [(0.0, 0.0), (8.0, 0.0), (0.0, 8.0), (8.0, 8.0)]
 
-#: Where the simulated demo robots start (x, y, yaw in the plant): both in the west hall, on patrols that cover the
-#: same ground half a lap apart, so that each sees what the other mapped and their SLAM finds them in each other's
-#: maps (no start pose is given to the fleet). Robots not listed start where the simulator places them.
+#: Where the simulated demo robots start (x, y, yaw in the plant), both in the west hall, when they share a patrol:
+#: c3po at the route's start; r2d2 on c3po's own path, as far ahead as the route allows (half a lap on a route that
+#: does not cross itself, a quarter on the figure eight: :meth:`~fleetslam.robot.autopilot.Route.second_start`), so
+#: that each sees what the other mapped and their SLAM finds them in each other's maps (no start pose is given to the
+#: fleet). An open route has no lap to share: r2d2 drives it from the hall's other corner, over the same ground the
+#: other way. Robots not listed start where the simulator places them.
 SHARED_PATROL_STARTS = {"c3po": (-12.0, -7.5, 0.0), "r2d2": (-7.5, -3.5, math.pi)}
 
 
@@ -60,9 +63,11 @@ def fleetslam_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "fleetslam.cli.main", *args]
 
 
-def sim_config(robots: list[str], *, shared_patrol: bool = True) -> Any:
+def sim_config(robots: list[str], *, shared_patrol: bool = True, route: str = "loop") -> Any:
     """The simulator's configuration for the demo: with ``shared_patrol``, the robots of
-    :data:`SHARED_PATROL_STARTS` start there; the others (and all without it) where the simulator places them."""
+    :data:`SHARED_PATROL_STARTS` share a patrol of ``route``; the others (and all without it) start where the
+    simulator places them."""
+    from fleetslam.robot.autopilot import get_route
     from fleetslam.sim.config import RobotPlacement, SimConfig
 
     config = SimConfig()
@@ -72,6 +77,15 @@ def sim_config(robots: list[str], *, shared_patrol: bool = True) -> Any:
     for name, (x, y, yaw) in SHARED_PATROL_STARTS.items():
         if name in robots:
             placements[name] = RobotPlacement(name=name, x=x, y=y, yaw=yaw)
+    patrol = get_route(route)
+    if "r2d2" in placements and patrol.closed and patrol.frame == "start":
+        x0, y0, yaw0 = SHARED_PATROL_STARTS["c3po"]
+        ahead = patrol.second_start()
+        px, py, pyaw = patrol.starting_at(ahead)[1]
+        c, s = math.cos(yaw0), math.sin(yaw0)
+        placements["r2d2"] = RobotPlacement(
+            name="r2d2", x=x0 + c * px - s * py, y=y0 + s * px + c * py, yaw=yaw0 + pyaw, route_start_waypoint=ahead
+        )
     return config.model_copy(update={"robots": list(placements.values())})
 
 
@@ -155,7 +169,7 @@ def sim_processes(
     fleet_config = out_dir / "fleet_map.yaml"
     import yaml
 
-    plant_config = sim_config(robots, shared_patrol=not known_starts)
+    plant_config = sim_config(robots, shared_patrol=not known_starts, route=route)
     (out_dir / "sim.yaml").write_text(yaml.safe_dump(plant_config.model_dump(mode="json")))
     poses, extrinsics = start_poses(robots, plant_config)
     (out_dir / "start_poses.yaml").write_text(

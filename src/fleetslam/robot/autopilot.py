@@ -7,6 +7,7 @@ plant coordinates with :func:`register_route` (``frame="world"``).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -36,6 +37,90 @@ class Route:
         x0, y0, th0 = start
         c, s = math.cos(th0), math.sin(th0)
         return [(x0 + c * px - s * py, y0 + s * px + c * py) for px, py in points]
+
+    def lap_phases(self) -> list[float]:
+        """Each waypoint's place on a closed route's lap: the distance driven from the first one, as a fraction of
+        the lap (the first 0)."""
+        lap = self._lap()
+        lengths = [math.dist(a, b) for a, b in itertools.pairwise(lap)]
+        total = sum(lengths)
+        if total <= 0.0:
+            raise ConfigError(f"route {self.name!r}: its lap has no length")
+        phases, driven = [], 0.0
+        for length in lengths:
+            phases.append(driven / total)
+            driven += length
+        return phases
+
+    def crossing_gaps(self) -> list[float]:
+        """Where a closed route crosses itself, the part of a lap between its two passes there (in 0..1): a robot
+        that follows another by that much of a lap meets it at the crossing."""
+        lap = self._lap()
+        phases = [*self.lap_phases(), 1.0]
+        gaps = []
+        for i in range(len(lap) - 1):
+            for j in range(i + 2, len(lap) - 1):
+                if i == 0 and j == len(lap) - 2:
+                    continue  # the last segment ends where the first begins
+                at = _segment_crossing(lap[i], lap[i + 1], lap[j], lap[j + 1])
+                if at is not None:
+                    on_i = phases[i] + at[0] * (phases[i + 1] - phases[i])
+                    on_j = phases[j] + at[1] * (phases[j + 1] - phases[j])
+                    gaps.append(on_j - on_i)
+        return gaps
+
+    def second_start(self) -> int:
+        """The waypoint where a second robot sharing this closed route as a patrol starts: the farthest around the
+        lap from the first robot's start and from every gap at which they would meet where the route crosses itself
+        (both follow the same path at the same speeds, so the second stays that part of a lap ahead)."""
+        avoid = [0.0, *self.crossing_gaps()]
+        avoid += [1.0 - g for g in avoid]
+
+        def clearance(phase: float) -> float:
+            return min(min(abs(phase - a), 1.0 - abs(phase - a)) for a in avoid)
+
+        phases = self.lap_phases()
+        return max(range(len(phases)), key=lambda k: (clearance(phases[k]), -abs(phases[k] - 0.5)))
+
+    def starting_at(self, index: int) -> tuple[Route, tuple[float, float, float]]:
+        """The same closed path driven from waypoint ``index``: the route as seen from a robot standing there and
+        facing the next waypoint, and that pose (x, y, θ) in this route's frame. A robot placed there with the
+        returned route drives this route's path, ``index`` waypoints on."""
+        if not self.closed:
+            raise ConfigError(f"route {self.name!r} is open: a robot can start only at its first waypoint")
+        if not 0 <= index < len(self.waypoints):
+            raise ConfigError(f"route {self.name!r} has {len(self.waypoints)} waypoints, no waypoint {index}")
+        if index == 0:
+            return self, (0.0, 0.0, 0.0)
+        lap = self._lap()
+        (x0, y0), (x1, y1) = lap[index], lap[index + 1]
+        th0 = math.atan2(y1 - y0, x1 - x0)
+        turned = self.waypoints[index:] + self.waypoints[:index]
+        if self.frame == "world":
+            return Route(f"{self.name}@{index}", turned, closed=True, frame="world"), (x0, y0, th0)
+        c, s = math.cos(th0), math.sin(th0)
+        relative = tuple(
+            (round(c * (px - x0) + s * (py - y0), 9), round(-s * (px - x0) + c * (py - y0), 9)) for px, py in turned
+        )
+        return Route(f"{self.name}@{index}", relative, closed=True), (x0, y0, th0)
+
+    def _lap(self) -> list[Point]:
+        if not self.closed:
+            raise ConfigError(f"route {self.name!r} is open: it has no lap")
+        return [*self.waypoints, self.waypoints[0]]
+
+
+def _segment_crossing(a: Point, b: Point, c: Point, d: Point) -> tuple[float, float] | None:
+    """Where segments ab and cd cross, as fractions along each, or None (parallel ones never do)."""
+    rx, ry = b[0] - a[0], b[1] - a[1]
+    sx, sy = d[0] - c[0], d[1] - c[1]
+    denominator = rx * sy - ry * sx
+    if abs(denominator) < 1e-12:
+        return None
+    qx, qy = c[0] - a[0], c[1] - a[1]
+    t = (qx * sy - qy * sx) / denominator
+    u = (qx * ry - qy * rx) / denominator
+    return (t, u) if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0 else None
 
 
 def _square(side: float) -> tuple[Point, ...]:

@@ -57,6 +57,10 @@ class RobotPlacement(ConfigModel):
     """Start position y in the world, m."""
     yaw: float = 0.0
     """Start heading, rad."""
+    route_start_waypoint: int = Field(default=0, ge=0)
+    """Where on a closed autopilot route this robot starts: the waypoint it stands at, facing the next (0: the
+    route's own start). Robots sharing a patrol start apart on it; the robot must be placed there
+    (:meth:`fleetslam.robot.autopilot.Route.starting_at` gives the pose)."""
 
 
 def _default_robots() -> list[RobotPlacement]:

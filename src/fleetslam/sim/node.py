@@ -22,12 +22,13 @@ from typing import Any, TextIO
 
 from fleetslam import topics
 from fleetslam.drivers.node import OPTICAL_FRAME, image_messages
+from fleetslam.errors import ConfigError
 from fleetslam.middleware import Context, Node, Publisher
 from fleetslam.msg.conversions import camera_info_msg, odometry_msg, pose_msg, transform_msg
 from fleetslam.msg.typesys import get_type, stamp_from_ns
-from fleetslam.robot.autopilot import Autopilot, get_route
+from fleetslam.robot.autopilot import Autopilot, Route, get_route
 from fleetslam.robot.node import BaseControllerNode
-from fleetslam.sim.config import SimConfig
+from fleetslam.sim.config import RobotPlacement, SimConfig
 from fleetslam.sim.plant import Plant
 from fleetslam.trajectory import tum_line
 
@@ -40,6 +41,16 @@ WORLD_FRAME = "world"
 
 def _publisher(node: Node, topic: topics.Topic) -> Publisher:
     return node.create_publisher(topic.type, topic.name, topic.qos())
+
+
+def _autopilot(route: Route, placement: RobotPlacement, laps: bool) -> Autopilot:
+    """The robot's autopilot on ``route`` from its placement's waypoint, in its odometry frame (which starts at
+    its start pose)."""
+    try:
+        own_route = route.starting_at(placement.route_start_waypoint)[0] if placement.route_start_waypoint else route
+    except ConfigError as err:
+        raise ConfigError(f"robot {placement.name}: route_start_waypoint: {err}") from err
+    return Autopilot.for_route(own_route, (0.0, 0.0, 0.0), cyclic=laps)
 
 
 @dataclass
@@ -111,7 +122,7 @@ class SimNode:
                 rgb_info_pub=_publisher(node, topics.CAMERA_INFO),
                 depth_info_pub=_publisher(node, topics.DEPTH_CAMERA_INFO),
                 truth_pub=_publisher(node, topics.GROUND_TRUTH_ODOM),
-                autopilot=Autopilot.for_route(route, (0.0, 0.0, 0.0), cyclic=laps) if route is not None else None,
+                autopilot=_autopilot(route, plant.robot(name).placement, laps) if route is not None else None,
             )
             static_tf = _publisher(node, topics.TF_STATIC)
             static_tf.publish(transform_msg(plant.camera_extrinsics(name), "base_link", OPTICAL_FRAME, 0))
