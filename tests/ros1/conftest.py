@@ -5,6 +5,7 @@ Tests here skip, naming the packages, when ROS 1 is not installed (``scripts/set
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -29,6 +30,30 @@ def need_ros1(*tools: str) -> None:
     missing = [t for t in ("roscore", *tools) if shutil.which(t) is None]
     if missing:
         pytest.skip(f"ROS 1 tools {missing} not installed (apt-get install {ROS1_PACKAGES}, or scripts/setup as root)")
+
+
+def _descendants(root: int) -> list[int]:
+    """Every process below ``root`` now (from ``/proc``)."""
+    parent: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        parent[int(stat.parent.name)] = int(text[text.rindex(")") + 2 :].split()[1])
+    found, frontier = [], [root]
+    while frontier:
+        frontier = [pid for pid, ppid in parent.items() if ppid in frontier]
+        found += frontier
+    return found
+
+
+def _answers(uri: str) -> bool:
+    try:
+        xmlrpc.client.ServerProxy(uri).getPid("/test")
+    except OSError:
+        return False
+    return True
 
 
 @dataclass
@@ -66,14 +91,27 @@ class Master:
         raise RuntimeError(f"roscore did not come up on {self.uri}; see {self.home / 'roscore.log'}")
 
     def stop(self) -> None:
+        """Stop roscore and everything it started. roslaunch puts rosmaster and rosout in sessions of their own and
+        stops them one by one (15 s each at most): under load it was still at it when killed, and the orphaned
+        rosmaster kept the port, so the next ``start`` found it answering ("another roscore/master is already
+        running") and a "restarted" master was the old one."""
         if self.process is not None and self.process.poll() is None:
+            started = _descendants(self.process.pid)
             os.killpg(self.process.pid, signal.SIGINT)
             try:
                 self.process.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 os.killpg(self.process.pid, signal.SIGKILL)
                 self.process.wait()
+            for pid in started:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
         self.process = None
+        deadline = time.monotonic() + 10
+        while _answers(self.uri):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"a ROS master still answers on {self.uri} after roscore was stopped")
+            time.sleep(0.1)
 
     def restart(self) -> None:
         self.stop()
