@@ -62,29 +62,12 @@ def _browse(url: str, stop: threading.Event, out: Path, log: list[str], usage: d
         context.close()
 
 
-def _descendants(root: int) -> list[int]:
-    """Every process below ``root`` (from ``/proc``)."""
-    parent: dict[int, int] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            text = stat.read_text()
-        except OSError:
-            continue
-        parent[int(stat.parent.name)] = int(text[text.rindex(")") + 2 :].split()[1])
-    found, frontier = [], [root]
-    while frontier:
-        children = [pid for pid, ppid in parent.items() if ppid in frontier]
-        found += children
-        frontier = children
-    return found
-
-
 def browser_cpu_s() -> float:
     """CPU seconds used so far by the Chromium processes this benchmark started (with their reaped children)."""
-    from fleetslam.launch.supervisor import sample_process
+    from fleetslam.launch.supervisor import descendants, sample_process
 
     total = 0.0
-    for pid in _descendants(os.getpid()):
+    for pid in descendants(os.getpid()):
         try:
             name = Path(f"/proc/{pid}/comm").read_text().strip()
         except OSError:

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from fleetslam.launch.supervisor import descendants
+
 from ..support import free_port
 
 ROS1_PACKAGES = (
@@ -30,22 +32,6 @@ def need_ros1(*tools: str) -> None:
     missing = [t for t in ("roscore", *tools) if shutil.which(t) is None]
     if missing:
         pytest.skip(f"ROS 1 tools {missing} not installed (apt-get install {ROS1_PACKAGES}, or scripts/setup as root)")
-
-
-def _descendants(root: int) -> list[int]:
-    """Every process below ``root`` now (from ``/proc``)."""
-    parent: dict[int, int] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            text = stat.read_text()
-        except OSError:
-            continue
-        parent[int(stat.parent.name)] = int(text[text.rindex(")") + 2 :].split()[1])
-    found, frontier = [], [root]
-    while frontier:
-        frontier = [pid for pid, ppid in parent.items() if ppid in frontier]
-        found += frontier
-    return found
 
 
 def _answers(uri: str) -> bool:
@@ -96,7 +82,7 @@ class Master:
         rosmaster kept the port, so the next ``start`` found it answering ("another roscore/master is already
         running") and a "restarted" master was the old one."""
         if self.process is not None and self.process.poll() is None:
-            started = _descendants(self.process.pid)
+            started = descendants(self.process.pid)
             os.killpg(self.process.pid, signal.SIGINT)
             try:
                 self.process.wait(timeout=10)

@@ -65,6 +65,22 @@ def sample_process(pid: int, *, proc: Path = Path("/proc")) -> ProcessSample | N
     return ProcessSample((utime + stime + cutime + cstime) / ticks, max(0.0, uptime_s - started_s), peak_kib / 1024)
 
 
+def descendants(root: int, *, proc: Path = Path("/proc")) -> list[int]:
+    """Every process below ``root`` now, children first (from ``/proc``; empty where it is not Linux's)."""
+    parent: dict[int, int] = {}
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        parent[int(stat.parent.name)] = int(text[text.rindex(")") + 2 :].split()[1])
+    found, frontier = [], [root]
+    while frontier:
+        frontier = [pid for pid, ppid in parent.items() if ppid in frontier]
+        found += frontier
+    return found
+
+
 def _exited(pid: int) -> bool:
     """Whether a child has exited, without reaping it (Linux ``waitid`` with ``WNOWAIT``; False elsewhere)."""
     if not sys.platform.startswith("linux"):
