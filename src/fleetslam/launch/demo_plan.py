@@ -79,13 +79,11 @@ def sim_config(robots: list[str], *, shared_patrol: bool = True, route: str = "l
             placements[name] = RobotPlacement(name=name, x=x, y=y, yaw=yaw)
     patrol = get_route(route)
     if "r2d2" in placements and patrol.closed and patrol.frame == "start":
-        x0, y0, yaw0 = SHARED_PATROL_STARTS["c3po"]
+        c3po_start = SHARED_PATROL_STARTS["c3po"]
         ahead = patrol.second_start()
-        px, py, pyaw = patrol.starting_at(ahead)[1]
-        c, s = math.cos(yaw0), math.sin(yaw0)
-        placements["r2d2"] = RobotPlacement(
-            name="r2d2", x=x0 + c * px - s * py, y=y0 + s * px + c * py, yaw=yaw0 + pyaw, route_start_waypoint=ahead
-        )
+        x, y = patrol.in_world(c3po_start)[ahead]
+        yaw = c3po_start[2] + patrol.starting_at(ahead)[1][2]
+        placements["r2d2"] = RobotPlacement(name="r2d2", x=x, y=y, yaw=yaw, route_start_waypoint=ahead)
     return config.model_copy(update={"robots": list(placements.values())})
 
 

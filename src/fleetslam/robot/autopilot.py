@@ -85,13 +85,13 @@ class Route:
     def starting_at(self, index: int) -> tuple[Route, tuple[float, float, float]]:
         """The same closed path driven from waypoint ``index``: the route as seen from a robot standing there and
         facing the next waypoint, and that pose (x, y, θ) in this route's frame. A robot placed there with the
-        returned route drives this route's path, ``index`` waypoints on."""
-        if not self.closed:
-            raise ConfigError(f"route {self.name!r} is open: a robot can start only at its first waypoint")
-        if not 0 <= index < len(self.waypoints):
-            raise ConfigError(f"route {self.name!r} has {len(self.waypoints)} waypoints, no waypoint {index}")
+        returned route drives this route's path, ``index`` waypoints on. Waypoint 0 is any route's own start."""
         if index == 0:
             return self, (0.0, 0.0, 0.0)
+        if not self.closed:
+            raise ConfigError(f"route {self.name!r} is open: a robot can start only at its first waypoint")
+        if not 0 < index < len(self.waypoints):
+            raise ConfigError(f"route {self.name!r} has {len(self.waypoints)} waypoints, no waypoint {index}")
         lap = self._lap()
         (x0, y0), (x1, y1) = lap[index], lap[index + 1]
         th0 = math.atan2(y1 - y0, x1 - x0)

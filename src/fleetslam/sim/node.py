@@ -47,7 +47,7 @@ def _autopilot(route: Route, placement: RobotPlacement, laps: bool) -> Autopilot
     """The robot's autopilot on ``route`` from its placement's waypoint, in its odometry frame (which starts at
     its start pose)."""
     try:
-        own_route = route.starting_at(placement.route_start_waypoint)[0] if placement.route_start_waypoint else route
+        own_route = route.starting_at(placement.route_start_waypoint)[0]
     except ConfigError as err:
         raise ConfigError(f"robot {placement.name}: route_start_waypoint: {err}") from err
     return Autopilot.for_route(own_route, (0.0, 0.0, 0.0), cyclic=laps)
