@@ -70,3 +70,9 @@ class UnsafePathError(FleetslamError):
 
 class FindingError(FleetslamError):
     """An inspection finding is invalid (a field's value) or unknown, or the findings file is malformed."""
+
+
+def worth_logging(count: int) -> bool:
+    """Whether the ``count``-th ignored bad input of one kind is logged: the 1st, 10th, 100th and every 1000th, so a
+    hostile stream costs a node a bounded log, and its count still shows in the message."""
+    return count in (1, 10, 100) or count % 1000 == 0

@@ -31,7 +31,7 @@ from pydantic import Field
 
 from fleetslam import topics
 from fleetslam.config import ConfigModel
-from fleetslam.errors import MessageError
+from fleetslam.errors import MessageError, worth_logging
 from fleetslam.fusion.consistency import ConsistencyTolerance
 from fleetslam.fusion.fleet_graph import ClosureReport, FleetGraph, FleetSolution
 from fleetslam.fusion.graph_exchange import GraphUpdate, graph_update_of
@@ -237,7 +237,7 @@ class FleetGraphNode:
         except (MessageError, ValueError, TypeError) as err:
             self.counts["bad_messages"] += 1
             n = self.counts["bad_messages"]
-            if n in (1, 10, 100) or n % 1000 == 0:
+            if worth_logging(n):
                 log.warning("fleet back-end: graph update from %s ignored (%d so far): %s", agent, n, err)
             return None
 

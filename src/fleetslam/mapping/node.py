@@ -35,7 +35,7 @@ from pydantic import Field
 from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
-from fleetslam.errors import MessageError, UnsafePathError
+from fleetslam.errors import MessageError, UnsafePathError, worth_logging
 from fleetslam.fusion.fleet_correction import FleetCorrection, stamp_key
 from fleetslam.fusion.graph_exchange import GraphMirror, graph_update_of
 from fleetslam.fusion.graph_fetcher import GraphFetcher
@@ -222,7 +222,7 @@ class MappingNode:
 
     def _reject(self, what: str, err: Exception) -> None:
         self.rejected += 1
-        if self.rejected in (1, 10, 100) or self.rejected % 1000 == 0:
+        if worth_logging(self.rejected):
             log.warning("%s ignored (%d inputs ignored so far): %s", what, self.rejected, err)
 
     def on_graph_data(self, data: bytes) -> None:

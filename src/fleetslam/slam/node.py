@@ -38,7 +38,7 @@ from fleetslam import topics
 from fleetslam._imports import require
 from fleetslam.config import ConfigModel
 from fleetslam.datasets.base import RGBDFrame
-from fleetslam.errors import MessageError, ServiceError, UnsafePathError
+from fleetslam.errors import MessageError, ServiceError, UnsafePathError, worth_logging
 from fleetslam.fusion.collaboration import CollaborationConfig, InterAgentLinker, SharedClosure
 from fleetslam.fusion.fleet_correction import FleetCorrection
 from fleetslam.fusion.graph_exchange import GraphDeltaWriter, GraphUpdate, graph_update_of
@@ -283,7 +283,7 @@ class SlamNode:
                 self._start_pipeline(msg)
         except MessageError as err:  # the pipeline starts with the first camera_info that is a camera
             self.bad_inputs += 1
-            if self.bad_inputs in (1, 10, 100) or self.bad_inputs % 1000 == 0:
+            if worth_logging(self.bad_inputs):
                 log.warning("%s: %s (%d bad inputs ignored)", self.agent, err, self.bad_inputs)
 
     def _start_pipeline(self, msg: Any) -> None:
@@ -298,7 +298,7 @@ class SlamNode:
         pose = _valid_pose(lambda: pose_matrix(msg.pose.pose))
         if pose is None:
             self.bad_inputs += 1
-            if self.bad_inputs in (1, 10, 100) or self.bad_inputs % 1000 == 0:
+            if worth_logging(self.bad_inputs):
                 log.warning("%s: odom pose is not finite or not a rotation (%d such messages ignored)",
                             self.agent, self.bad_inputs)  # fmt: skip
             return
@@ -367,7 +367,7 @@ class SlamNode:
     def _bad_peer_message(self, peer: str, what: str, err: Exception | str) -> None:
         self.counts["bad_peer_messages"] += 1
         n = self.counts["bad_peer_messages"]
-        if n in (1, 10, 100) or n % 1000 == 0:
+        if worth_logging(n):
             log.warning("%s: %s from %s ignored (%d so far): %s", self.agent, what, peer, n, err)
 
     def on_peer_summary(self, peer: str, msg: Any) -> None:
@@ -481,7 +481,7 @@ class SlamNode:
                     self.process(pair)
             except Exception as err:  # one bad frame (malformed image, numeric failure) must not stop SLAM
                 self.counts["failed_frames"] += 1
-                if self.counts["failed_frames"] in (1, 10, 100) or self.counts["failed_frames"] % 1000 == 0:
+                if worth_logging(self.counts["failed_frames"]):
                     log.warning("%s: frame at %d ns failed (%d so far): %s", self.agent, pair.stamp_ns,
                                 self.counts["failed_frames"], err)  # fmt: skip
 
@@ -843,7 +843,7 @@ class SlamNode:
                     linker.catch_up_failed(peer, time.monotonic())
                     self.counts["catch_up_failures"] += 1
                     n = self.counts["catch_up_failures"]
-                    if n in (1, 10, 100) or n % 1000 == 0:
+                    if worth_logging(n):
                         log.info("%s: no keyframe summaries from %s (%d failed requests): %s", self.agent, peer, n, err)
                     continue
                 good = [s for s in summaries if s is not None]
