@@ -5,6 +5,7 @@ restarts mid-run (a new map frame), the first drops their closures and it is pla
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -59,6 +60,13 @@ def drive(x0: float, x1: float, y: float, count: int) -> list[np.ndarray]:
     return [pose_from_planar(x0 + d * c, y + d * s, CORNER_HEADING) @ BASE_CAMERA for d in steps]
 
 
+def camera_heard(camera: CameraNode) -> bool:
+    """Whether the SLAM node's image and camera_info subscriptions are known to the camera's session: a frame
+    published before that reaches no one (Zenoh routes a sample only to the subscriptions it already knows of), and
+    a lost first half would hold the cameras' pacing by the poses up."""
+    return all(pub.matched_subscriptions for pub in (camera.rgb_pub, camera.depth_pub, camera.rgb_info_pub))
+
+
 def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_restart(
     make_context: Callable[..., Context],
 ) -> None:
@@ -98,6 +106,7 @@ def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_resta
             node = Node("camera", context=make_context(), namespace=f"/{agent}")
             cameras[agent] = (CameraNode(node, driver, base_camera=BASE_CAMERA), driver)
         assert wait_until(lambda: all(s.base_camera is not None for s in slam.values()), 10.0)
+        assert wait_until(lambda: all(camera_heard(camera) for camera, _ in cameras.values()), 10.0)
         for camera, driver in cameras.values():
             camera.start()
             driver.go.set()
@@ -134,6 +143,7 @@ def test_two_agents_find_each_other_and_the_second_is_placed_again_after_a_resta
             )
             cameras[agent] = (CameraNode(Node("camera2", context=make_context(), namespace=f"/{agent}"), driver,
                                          base_camera=BASE_CAMERA), driver)  # fmt: skip
+            assert wait_until(partial(camera_heard, cameras[agent][0]), 10.0)
             cameras[agent][0].start()
             driver.go.set()
         for camera, _ in cameras.values():  # on failure: frames processed, received, dropped, pending per agent
@@ -193,6 +203,7 @@ def test_a_late_agent_is_placed_from_the_closures_the_other_shares(make_context:
             camera = CameraNode(Node("camera", context=make_context(), namespace=f"/{agent}"), driver,
                                 base_camera=BASE_CAMERA)  # fmt: skip
             assert wait_until(lambda a=agent: slam[a].base_camera is not None, 10.0)
+            assert wait_until(partial(camera_heard, camera), 10.0)
             camera.start()
             driver.go.set()
             assert camera.join(60.0), (slam[agent].frames, slam[agent].queue.received, slam[agent].queue.pending)
