@@ -71,6 +71,27 @@ def test_binary_nearest_neighbours_match_brute_force(search: str) -> None:
     np.testing.assert_array_equal(hamming_distances(pack_binary(queries), pack_binary(words)), expected)
 
 
+@pytest.mark.parametrize("width", [8, 16, 48, 61, 64])
+def test_the_numba_search_agrees_with_brute_force_at_every_descriptor_width(width: int) -> None:
+    """The kernel sums four 64-bit lanes per pass over the words, then the rest one by one: one lane (8 bytes),
+    two, four and two (48), eight with padding (AKAZE's 61 bytes), eight (BRISK's 64)."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(width)
+    words = rng.integers(0, 256, size=(500, width), dtype=np.uint8)
+    queries = np.vstack([flip_bits(rng, words[:40], max(1, width // 4)), rng.integers(0, 256, (40, width), np.uint8)])
+    vocabulary = VisualVocabulary(search="numba")
+    vocabulary.add_words(words[:200])
+    vocabulary.nearest2(queries)  # builds the index; the next words are appended to it
+    vocabulary.add_words(words[200:])
+    nearest, d1, d2 = vocabulary.nearest2(queries)
+    expected = brute_force_hamming(queries, words)
+    sorted_dist = np.sort(expected, axis=1)
+    np.testing.assert_array_equal(d1, sorted_dist[:, 0])
+    np.testing.assert_array_equal(d2, sorted_dist[:, 1])
+    lowest_nearest = (expected == sorted_dist[:, :1]).argmax(axis=1)  # ties: the lowest id
+    np.testing.assert_array_equal(nearest, lowest_nearest)
+
+
 def test_float_nearest_neighbours_match_brute_force() -> None:
     rng = np.random.default_rng(4)
     words = rng.normal(size=(400, 128)).astype(np.float32)

@@ -41,7 +41,7 @@ def compile_kernels() -> float:
     from fleetslam.slam._hamming_kernels import nearest2_packed  # the SLAM vocabulary's search
 
     lanes = rng.integers(0, 2**63, size=(4, 4), dtype=np.uint64)
-    nearest2_packed(lanes, lanes)
+    nearest2_packed(lanes, np.ascontiguousarray(lanes.T))
     return time.perf_counter() - start
 
 

