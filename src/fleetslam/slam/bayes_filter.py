@@ -77,8 +77,9 @@ class BayesFilter:
         """Forget the posterior (e.g. after relocalisation in another session)."""
         self._posterior = {}
 
-    def _neighborhood(self, start: int, ids: set[int], neighbors: NeighborFn) -> dict[int, int]:
-        """Locations within the model's depth from ``start`` through links between the given ids: id -> depth."""
+    def _neighborhood(self, start: int, linked: Callable[[int], list[int]]) -> dict[int, int]:
+        """Locations within the model's depth from ``start`` through ``linked`` (a location's links to the
+        hypotheses' locations): id -> depth."""
         max_depth = len(self.prediction_lc) - 2
         depth = {start: 0}
         queue = deque([start])
@@ -87,8 +88,8 @@ class BayesFilter:
             d = depth[current]
             if d >= max_depth:
                 continue
-            for other in neighbors(current):
-                if other in ids and other not in depth:
+            for other in linked(current):
+                if other not in depth:
                     depth[other] = d + 1
                     queue.append(other)
         return depth
@@ -110,11 +111,21 @@ class BayesFilter:
             prior_vp += self.virtual_place_prior * p_vp
             uniform_total += (1.0 - self.virtual_place_prior) * p_vp / n
 
+        # Each location's links among the hypotheses, looked up once per prediction: the walks from every location
+        # reach the same few neighbours again and again (a working memory of 300 asked for each ~9 times).
+        links: dict[int, list[int]] = {}
+
+        def linked(location: int) -> list[int]:
+            found = links.get(location)
+            if found is None:
+                found = links[location] = [other for other in neighbors(location) if other in id_set]
+            return found
+
         for loc in locations:
             p = previous.get(loc, 0.0)
             if p == 0.0:
                 continue
-            depth = self._neighborhood(loc, id_set, neighbors)
+            depth = self._neighborhood(loc, linked)
             values = {other: self.prediction_lc[1 + d] for other, d in depth.items()}
             total = self.prediction_lc[0] + sum(values.values())
             others = n - len(values)
