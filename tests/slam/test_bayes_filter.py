@@ -55,6 +55,27 @@ def test_prediction_conserves_probability_and_favours_neighbours() -> None:
     assert prior[2] == pytest.approx(prior[3]) == pytest.approx((1.0 - 0.1 - 0.36) / 2)
 
 
+def test_prediction_asks_for_each_locations_links_once_and_walks_only_the_hypotheses() -> None:
+    """Every location's walk reaches its neighbours' links again: one prediction looks each up once (the memory's
+    ``neighbors`` sorts a location's links per call). Links to locations that are no hypothesis (in long-term
+    memory) are not walked through: 10 and 20 link 1..9 and 11..19 only through 10 and 20, which are left out."""
+    calls: dict[int, int] = {}
+    links = chain(30)
+
+    def neighbors(i: int) -> list[int]:
+        calls[i] = calls.get(i, 0) + 1
+        return links(i)
+
+    ids = [VIRTUAL_PLACE, *[i for i in range(1, 31) if i not in (10, 20)]]
+    previous = dict.fromkeys(ids, 1.0 / len(ids))
+    prior = BayesFilter().predict(ids, previous, neighbors)
+    assert calls and max(calls.values()) == 1
+    assert 10 not in calls and 20 not in calls
+    assert sum(prior.values()) == pytest.approx(1.0)
+    # 9 has one neighbour among the hypotheses (8), as 1 does (2): the same prior, less than 5's, which has two.
+    assert prior[9] == pytest.approx(prior[1]) and prior[9] < prior[5]
+
+
 def test_posterior_stays_on_virtual_place_without_evidence_and_follows_a_revisit() -> None:
     bayes = BayesFilter()
     neighbors = chain(40)
