@@ -17,6 +17,23 @@ def brute_force_hamming(queries: np.ndarray, words: np.ndarray) -> np.ndarray:
     return np.abs(q_bits[:, None, :] - w_bits[None, :, :]).sum(axis=2)
 
 
+def nearest_after_growth(
+    vocabulary: VisualVocabulary, words: np.ndarray, built: int, queries: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The queries' nearest words in a vocabulary whose index was built on the first ``built`` words and then grew
+    by appending the rest; asserts both distances against brute force. Returns the nearest words, the brute-force
+    distances (queries × words) and those sorted per query."""
+    vocabulary.add_words(words[:built])
+    vocabulary.nearest2(queries)  # builds the index; the next words are appended to it
+    vocabulary.add_words(words[built:])
+    nearest, d1, d2 = vocabulary.nearest2(queries)
+    expected = brute_force_hamming(queries, words)
+    sorted_dist = np.sort(expected, axis=1)
+    np.testing.assert_array_equal(d1, sorted_dist[:, 0])
+    np.testing.assert_array_equal(d2, sorted_dist[:, 1])
+    return nearest, expected, sorted_dist
+
+
 def test_vocabulary_grows_then_saturates_on_repeated_descriptors() -> None:
     rng = np.random.default_rng(1)
     vocabulary = VisualVocabulary("binary", nndr_ratio=0.8)
@@ -57,17 +74,10 @@ def test_binary_nearest_neighbours_match_brute_force(search: str) -> None:
     queries = np.vstack([flip_bits(rng, words[:100], 20), random_descriptors(rng, 100), words[650:651]])
     vocabulary = VisualVocabulary(search=search)  # type: ignore[arg-type]
     assert vocabulary.search == search
-    vocabulary.add_words(words[:300])
-    vocabulary.nearest2(queries)  # builds the index; the next words are appended to it
-    vocabulary.add_words(words[300:])
-    nearest, d1, d2 = vocabulary.nearest2(queries)
-    expected = brute_force_hamming(queries, words)
-    sorted_dist = np.sort(expected, axis=1)
-    np.testing.assert_array_equal(d1, sorted_dist[:, 0])
-    np.testing.assert_array_equal(d2, sorted_dist[:, 1])
+    nearest, expected, sorted_dist = nearest_after_growth(vocabulary, words, 300, queries)
     np.testing.assert_array_equal(expected[np.arange(len(queries)), nearest], sorted_dist[:, 0])
     np.testing.assert_array_equal(nearest[:100], np.arange(100))
-    assert nearest[-1] == 650 and d1[-1] == 0 and d2[-1] == 0
+    assert nearest[-1] == 650 and sorted_dist[-1, 0] == 0 and sorted_dist[-1, 1] == 0  # d1, d2: equal to these
     np.testing.assert_array_equal(hamming_distances(pack_binary(queries), pack_binary(words)), expected)
 
 
@@ -79,15 +89,7 @@ def test_the_numba_search_agrees_with_brute_force_at_every_descriptor_width(widt
     rng = np.random.default_rng(width)
     words = rng.integers(0, 256, size=(500, width), dtype=np.uint8)
     queries = np.vstack([flip_bits(rng, words[:40], max(1, width // 4)), rng.integers(0, 256, (40, width), np.uint8)])
-    vocabulary = VisualVocabulary(search="numba")
-    vocabulary.add_words(words[:200])
-    vocabulary.nearest2(queries)  # builds the index; the next words are appended to it
-    vocabulary.add_words(words[200:])
-    nearest, d1, d2 = vocabulary.nearest2(queries)
-    expected = brute_force_hamming(queries, words)
-    sorted_dist = np.sort(expected, axis=1)
-    np.testing.assert_array_equal(d1, sorted_dist[:, 0])
-    np.testing.assert_array_equal(d2, sorted_dist[:, 1])
+    nearest, expected, sorted_dist = nearest_after_growth(VisualVocabulary(search="numba"), words, 200, queries)
     lowest_nearest = (expected == sorted_dist[:, :1]).argmax(axis=1)  # ties: the lowest id
     np.testing.assert_array_equal(nearest, lowest_nearest)
 
