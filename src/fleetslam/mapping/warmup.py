@@ -39,9 +39,10 @@ def compile_kernels() -> float:
     fleet.set_transform("b", pose_from_planar(1.0, 2.0, 0.3))
     fleet.update_agent("b", tree)
     from fleetslam.slam._hamming_kernels import nearest2_packed  # the SLAM vocabulary's search
+    from fleetslam.slam.vocabulary import pack_binary, pack_binary_by_lane
 
-    lanes = rng.integers(0, 2**63, size=(4, 4), dtype=np.uint64)
-    nearest2_packed(lanes, np.ascontiguousarray(lanes.T))
+    descriptors = rng.integers(0, 256, size=(4, 32), dtype=np.uint8)
+    nearest2_packed(pack_binary(descriptors), pack_binary_by_lane(descriptors))
     return time.perf_counter() - start
 
 

@@ -45,6 +45,12 @@ def pack_binary(descriptors: NDArray[np.uint8]) -> NDArray[np.uint64]:
     return desc.view(np.uint64).reshape(n, lanes)
 
 
+def pack_binary_by_lane(descriptors: NDArray[np.uint8]) -> NDArray[np.uint64]:
+    """:func:`pack_binary`'s lanes lane by lane, ``(lanes, N)``: each lane of all the descriptors contiguous, the
+    layout the numba search reads (it vectorises over the words)."""
+    return np.ascontiguousarray(pack_binary(descriptors).T)
+
+
 def hamming_distances(queries: NDArray[np.uint64], words: NDArray[np.uint64]) -> NDArray[np.int32]:
     """All pairwise Hamming distances ``(Q, W)`` between packed descriptors."""
     dist = np.zeros((queries.shape[0], words.shape[0]), dtype=np.int32)
@@ -105,8 +111,7 @@ class VisualVocabulary:
         self._index_ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
         self._index_data: NDArray[Any] | None = None
         self._index_packed: NDArray[np.uint64] | None = None
-        """The index's binary words packed in 64-bit lanes, lane by lane (``(lanes, words)``: each lane of all the
-        words contiguous, which the numba search vectorises), for the numba search."""
+        """The index's binary words for the numba search (:func:`pack_binary_by_lane`)."""
         self._index_dirty = True
 
     # ------------------------------------------------------------------ size and content
@@ -185,7 +190,7 @@ class VisualVocabulary:
             self._index_data = np.concatenate([self._index_data, desc])
             self._index_ids = np.concatenate([self._index_ids, ids])
             if self._index_packed is not None:
-                self._index_packed = np.concatenate([self._index_packed, pack_binary(desc).T], axis=1)
+                self._index_packed = np.concatenate([self._index_packed, pack_binary_by_lane(desc)], axis=1)
         else:
             self._index_dirty = True
         return ids
@@ -218,7 +223,7 @@ class VisualVocabulary:
             self._index_data = np.ascontiguousarray(words)
             self._index_ids = ids
             numba_index = self.kind == "binary" and self.search == "numba"
-            self._index_packed = np.ascontiguousarray(pack_binary(words).T) if numba_index else None
+            self._index_packed = pack_binary_by_lane(words) if numba_index else None
             self._index_dirty = False
         return self._index_ids, self._index_data
 
