@@ -44,8 +44,8 @@ def test_console_in_chromium(
         page.keyboard.up("w")
         page.keyboard.up("Space")
         released = time.time()
-        # The page's next 50 ms tick sends the release, the server's next 50 ms tick the zero (which may land
-        # before `released` is read: −0.1 s); nothing moves after the 0.3 s command timeout plus a tick each side.
+        # The page sends the release on the key's release and the server publishes its zero at once (which may
+        # land before `released` is read: −0.1 s); nothing moves after the 0.3 s command timeout plus a tick each side.
         assert wait_until(lambda: any(v == 0.0 and t >= released - 0.1 for t, v, _ in test_robot.commands), 2.0)
         time.sleep(0.6)
         assert not [c for c in test_robot.commands if c[0] > released + 0.5 and c[1] != 0.0]
@@ -57,6 +57,34 @@ def test_console_in_chromium(
         closed = time.time()
         time.sleep(1.0)
         assert not [c for c in test_robot.commands if c[0] > closed + 0.5 and c[1] != 0.0]  # as after the release
+    assert not errors, errors
+
+
+# Releases the deadman and D, then keeps the page's main thread busy for 1.5 s (as software GL drawing can under
+# load): no timer of the page runs meanwhile, so only the release itself can have sent the stop.
+RELEASE_WHILE_BUSY = """() => {
+  for (const key of [' ', 'd']) window.dispatchEvent(new KeyboardEvent('keyup', { key }));
+  const start = performance.now();
+  while (performance.now() - start < 1500) {}
+}"""
+
+
+def test_the_release_is_sent_at_once_while_the_page_is_busy(
+    browser_page: Any, make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    page, errors = browser_page
+    with StationServer(make_context(), port=0, teleop_rate_hz=0.25) as server:  # the server ticks every 4 s
+        page.goto(server.url)
+        page.wait_for_function("window.fleetslam && window.fleetslam.selected === 'c3po'", timeout=20000)
+        page.keyboard.down("Space")
+        page.keyboard.down("d")
+        start = time.time()
+        assert wait_until(lambda: any(w < 0 and t >= start for t, _, w in test_robot.commands), 10.0)
+        released = time.time()  # a few ms after a tick of the server: its next is ~4 s away
+        page.evaluate(RELEASE_WHILE_BUSY)
+        busy_until = time.time()
+        zeros = [t for t, v, w in test_robot.commands if v == 0.0 and w == 0.0 and t >= released]
+        assert zeros and zeros[0] < busy_until - 0.5, (released, busy_until, test_robot.commands[-3:])
     assert not errors, errors
 
 

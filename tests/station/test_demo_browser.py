@@ -144,7 +144,7 @@ def test_console_drives_a_simulated_robot(browser_page: Any, tmp_path: Path) -> 
             page.keyboard.up("d")
             page.keyboard.up("Space")
             released = sim_time_at(time.time())
-            # the console's zero within two 50 ms ticks, then braking from 0.8 rad/s at 4 rad/s² takes 0.2 s
+            # the console's zero goes out on the key's release, then braking from 0.8 rad/s at 4 rad/s² takes 0.2 s
             assert_stands_after(released, 0.6, "after the deadman was released")
 
             turn_right_in_place("again")

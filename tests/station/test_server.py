@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import time
 from collections.abc import Callable
@@ -108,6 +109,32 @@ def test_disconnect_while_driving_stops(make_context: Callable[..., Context], te
         time.sleep(0.5)
         late = [c for c in test_robot.commands if c[0] > closed_at + 0.2 and c[1] != 0.0]
         assert not late
+
+
+def test_a_release_stops_at_once_not_at_the_next_tick(
+    make_context: Callable[..., Context], test_robot: RobotUnderTest
+) -> None:
+    """The stream ticks every 4 s here: the deadman's release and a disconnect each publish their zero at once."""
+    with StationServer(make_context(), port=0, teleop_rate_hz=0.25) as server:
+        released_at: list[float] = []
+
+        async def hold_then(release: bool, ws: Any, received: list[dict[str, Any]]) -> None:
+            start = time.time()
+            while not any(c[1] != 0.0 and c[0] >= start for c in test_robot.commands):  # a tick sent the drive
+                await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0.3, "w": 0.0, "deadman": True}))
+                await asyncio.sleep(0.05)
+                assert time.time() - start < 10.0, "no drive command within two ticks"
+            released_at.append(time.time())
+            if release:
+                await ws.send_str(json.dumps({"type": "drive", "agent": "c3po", "v": 0, "w": 0, "deadman": False}))
+                await asyncio.sleep(1.5)  # stays connected: only the release can have sent the zero
+
+        for release in (True, False):  # released by the deadman, then by closing the connection
+            asyncio.run(_session(server.ws_url, functools.partial(hold_then, release)))
+            # Well inside the 4 s tick (the next tick may be up to 4 s away).
+            assert wait_until(lambda: any(c[1] == 0.0 and c[0] >= released_at[-1] for c in test_robot.commands), 1.5), (
+                f"no zero within 1.5 s of the release ({'deadman' if release else 'disconnect'})"
+            )
 
 
 async def _handshake(url: str, headers: dict[str, str]) -> tuple[int, str]:

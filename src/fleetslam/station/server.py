@@ -244,6 +244,8 @@ class StationServer:
             if self.bridge is not None:
                 for agent in client.driving:
                     self.bridge.gate.release(agent)
+                if client.driving:
+                    self.bridge.tick_teleop(time.monotonic())
         return socket
 
     async def _link(self, socket: Any) -> Any:
@@ -290,7 +292,12 @@ class StationServer:
             except (TypeError, ValueError):
                 return
             client.driving.add(agent)
-            bridge.gate.drive(agent, v, w, bool(message.get("deadman")), time.monotonic())
+            deadman = bool(message.get("deadman"))
+            now = time.monotonic()
+            bridge.gate.drive(agent, v, w, deadman, now)
+            if not deadman:
+                # A release goes out at once, not at the stream's next tick.
+                bridge.tick_teleop(now)
         elif kind == "estop" and bridge is not None:
             agent, engage = str(message.get("agent", "")), bool(message.get("engage"))
             if engage:

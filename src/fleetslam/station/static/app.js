@@ -542,7 +542,9 @@ function command() {
   return { v: v * maxV, w: w * maxW };
 }
 let wasDriving = false;
-setInterval(() => {
+// The stream's tick, also run at once on a release (key up, button up, blur): a stop must not wait for the next
+// tick, which a main thread busy drawing (software GL under load) can hold back for hundreds of milliseconds.
+function streamDrive() {
   if (!state.selected || !state.socket || state.socket.readyState !== 1) return;
   const held = deadmanHeld() && !state.estop;
   const { v, w } = command();
@@ -555,7 +557,9 @@ setInterval(() => {
     state.driveSent += 1;
   }
   wasDriving = held;
-}, 50); // 20 Hz: the server's stream stops within its timeout if these stop arriving
+}
+setInterval(streamDrive, 50); // 20 Hz: the server's stream stops within its timeout if these stop arriving
+function releaseNow() { if (wasDriving) streamDrive(); }
 
 window.addEventListener("keydown", (e) => {
   const k = e.key.toLowerCase();
@@ -566,10 +570,11 @@ window.addEventListener("keyup", (e) => {
   const k = e.key.toLowerCase();
   if (k === " ") state.deadman.key = false;
   state.keys.delete(k);
+  releaseNow();
 });
-window.addEventListener("blur", () => { state.keys.clear(); state.deadman.key = false; state.deadman.button = false; });
+window.addEventListener("blur", () => { state.keys.clear(); state.deadman.key = false; state.deadman.button = false; releaseNow(); });
 deadmanButton.addEventListener("pointerdown", () => { state.deadman.button = true; });
-for (const ev of ["pointerup", "pointerleave", "pointercancel"]) deadmanButton.addEventListener(ev, () => { state.deadman.button = false; });
+for (const ev of ["pointerup", "pointerleave", "pointercancel"]) deadmanButton.addEventListener(ev, () => { state.deadman.button = false; releaseNow(); });
 
 const stick = document.getElementById("joystick"), knob = document.getElementById("knob");
 function stickMove(e) {
@@ -581,7 +586,7 @@ function stickMove(e) {
 }
 stick.addEventListener("pointerdown", (e) => { stick.setPointerCapture(e.pointerId); state.deadman.button = true; stickMove(e); });
 stick.addEventListener("pointermove", (e) => { if (stick.hasPointerCapture(e.pointerId)) stickMove(e); });
-stick.addEventListener("pointerup", () => { state.stick = { v: 0, w: 0 }; state.deadman.button = false; knob.style.left = "42px"; knob.style.top = "42px"; });
+stick.addEventListener("pointerup", () => { state.stick = { v: 0, w: 0 }; state.deadman.button = false; knob.style.left = "42px"; knob.style.top = "42px"; releaseNow(); });
 
 // ---------------------------------------------------------------- e-stop
 // The button shows what the robot answered, never what was asked: "engaged" only once the robot's `e_stop` service
