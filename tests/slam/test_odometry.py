@@ -271,3 +271,30 @@ def test_keypoints_next_to_measured_depth_do_not_become_bearings(textures: list[
     assert len(every) > 50 and np.any(every > edge - 6)
     kept = bearing_rows(6)
     assert len(kept) > 50 and np.all(np.rint(kept) < edge - 6)
+
+
+def test_the_surface_term_aligns_with_the_oldest_keyframe_within_reach(textures: list[np.ndarray]) -> None:
+    """Aligned with the newest keyframe only, the point-to-plane term would start again from that keyframe's error
+    at every keyframe; it takes the oldest of the window within ``surface_reach`` / ``surface_reach_deg``."""
+    config = OdometryConfig(keyframe_translation=0.07, window_keyframes=6)
+    vo = VisualOdometry(config, INTRINSICS)
+    for k in range(8):  # keyframes 8 cm apart along the camera's axis: the window keeps the last six
+        result = vo.track(*render(BASE @ pose_from_xyz_rpy(0.0, 0.0, 0.08 * k, 0.0, 0.0, 0.0), INTRINSICS, textures),
+                          0.1 * k)  # fmt: skip
+        assert result.is_keyframe and not result.lost
+        vo.local_mapping()
+    window = list(vo.window)
+    distances = [float(np.linalg.norm(kf.pose[:3, 3])) for kf in window]
+    np.testing.assert_allclose(distances, [0.16, 0.24, 0.32, 0.40, 0.48, 0.56], atol=0.01)
+
+    def reference(z: float, yaw_deg: float = 0.0, **overrides: float) -> int:
+        vo.config = config.model_copy(update=overrides)
+        start = pose_from_xyz_rpy(0.0, 0.0, z, 0.0, np.radians(yaw_deg), 0.0)
+        chosen = vo._surface_keyframe(start)
+        return next(i for i, kf in enumerate(window) if kf is chosen)
+
+    assert reference(0.64) == 0  # 0.48 m from the oldest
+    assert reference(0.75) == 2  # 0.59 and 0.51 m from the two oldest: beyond 0.5 m
+    assert reference(0.75, surface_reach=0.3) == 4
+    assert reference(0.64, yaw_deg=25.0) == 5  # turned beyond 20° from every keyframe: the newest
+    assert reference(0.64, surface_reach=0.0) == 5  # 0: the newest only

@@ -282,6 +282,14 @@ class OdometryConfig(ConfigModel):
     surface_std_scale: float = Field(default=1.0, gt=0.0)
     """Multiplies the depth noise σ(z) as the point-to-plane residuals' standard deviation (1: the sensor's own;
     larger trusts the geometry less; 2 and 3 were tried and gave more drift on the feature-poor cells)."""
+    surface_reach: float = Field(default=0.5, ge=0.0)
+    """The point-to-plane term aligns each frame with the surface of the window's oldest keyframe within this
+    distance (metres) and ``surface_reach_deg`` of the frame (the newest keyframe where none is): aligned with the
+    newest keyframe only, it started again from that keyframe's own error at every keyframe, and in weak texture
+    (a keyframe every two or three frames) those errors add up as a random walk of the heading. 0: the newest
+    keyframe only (the behaviour before 27 November 2026; docs/slam.md gives the matrix with both)."""
+    surface_reach_deg: float = Field(default=20.0, ge=0.0)
+    """See ``surface_reach`` (degrees)."""
     photometric_samples: int = Field(default=0, ge=0)
     """Pixels of the newest keyframe compared by intensity with each frame (the strongest gradient of each block
     of the image's level nearest 320 pixels wide; :mod:`~fleetslam.slam.photometric_alignment`), refined together

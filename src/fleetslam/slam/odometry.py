@@ -480,7 +480,7 @@ class VisualOdometry:
         T_cw = invert(start)
         keep = np.ones(n, bool)
         fused: tuple[NDArray[np.float64], tuple[float, float]] | None = None
-        dense = self._dense_terms(frame)
+        dense = self._dense_terms(frame, start)
         for first in (True, False):
             idx = np.flatnonzero(keep)
             depth = (depths[idx], self.config.depth_noise)
@@ -762,23 +762,38 @@ class VisualOdometry:
             self.config.photometric_min_gradient, self.config.min_depth, self.config.max_depth,
         )  # fmt: skip
 
-    def _dense_terms(self, frame: _Frame) -> list[DenseTerm]:
-        """The point-to-plane and photometric terms against the newest keyframe, those that are on and have what
-        they need."""
+    def _dense_terms(self, frame: _Frame, start: NDArray[np.float64]) -> list[DenseTerm]:
+        """The point-to-plane term against the surface keyframe (``surface_reach``) and the photometric term
+        against the newest keyframe, those that are on and have what they need; ``start`` is where the frame's
+        pose refinement starts."""
         if not self.window:
             return []
         keyframe = self.window[-1]
         terms: list[DenseTerm] = []
-        if keyframe.surface is not None:
+        reference = self._surface_keyframe(start)
+        if reference is not None and reference.surface is not None:
             points = depth_samples(
                 frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
             )
-            terms.append(SurfaceTerm(keyframe.surface, keyframe.pose, points, self.config.depth_noise,
+            terms.append(SurfaceTerm(reference.surface, reference.pose, points, self.config.depth_noise,
                                      self.config.surface_std_scale))  # fmt: skip
         if keyframe.intensity is not None and frame.intensity is not None and len(keyframe.intensity.points):
             terms.append(PhotometricTerm(keyframe.intensity, keyframe.pose, frame.intensity,
                                          self.config.photometric_std))  # fmt: skip
         return terms
+
+    def _surface_keyframe(self, start: NDArray[np.float64]) -> _WindowKeyframe | None:
+        """The window's oldest keyframe with a surface within ``surface_reach`` and ``surface_reach_deg`` of
+        ``start``, else the newest: aligned to the newest alone, the surface term starts again from that
+        keyframe's error at every keyframe, which in weak texture comes every few frames."""
+        reach, reach_deg = self.config.surface_reach, self.config.surface_reach_deg
+        for keyframe in self.window if reach > 0 else ():
+            if keyframe.surface is None:
+                continue
+            motion = invert(keyframe.pose) @ start
+            if np.linalg.norm(motion[:3, 3]) <= reach and np.degrees(rotation_angle(motion)) <= reach_deg:
+                return keyframe
+        return self.window[-1] if self.window else None
 
     def _triangulate(
         self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
