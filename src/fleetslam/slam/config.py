@@ -274,8 +274,8 @@ class OdometryConfig(ConfigModel):
     keyframes, costs 19 → 23 ms of CPU per frame. Together with ``window_fixed_keyframes=6`` it was worse than
     that alone (hand-held 320×240: none of the 8 cells within 3 cm). Hence not the default."""
     surface_samples: int = Field(default=3000, ge=0)
-    """Depth samples per frame for the point-to-plane term against the newest keyframe's surface, refined together
-    with the features (the hybrid RGB-D odometry of DVO or Open3D; :mod:`~fleetslam.slam.surface_alignment`):
+    """Depth samples per frame for the point-to-plane term against a keyframe's surface (``surface_reach``), refined
+    together with the features (the hybrid RGB-D odometry of DVO or Open3D; :mod:`~fleetslam.slam.surface_alignment`):
     where texture is poor (a grey wall, a plain floor, a small image) the room's geometry holds the pose. 0 = off.
     On the matrix's feature-poor cells (procedural hall, 320×240, hand-held) it took the ATE from 5.8-6.0 cm to
     2.1-3.2 cm; where features are plenty it changes little (±0.4 cm)."""
