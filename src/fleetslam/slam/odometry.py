@@ -771,7 +771,7 @@ class VisualOdometry:
         keyframe = self.window[-1]
         terms: list[DenseTerm] = []
         reference = self._surface_keyframe(start)
-        if reference is not None and reference.surface is not None:
+        if reference.surface is not None:
             points = depth_samples(
                 frame.depth, self.intrinsics, self._surface_stride, self.config.min_depth, self.config.max_depth
             )
@@ -782,18 +782,20 @@ class VisualOdometry:
                                          self.config.photometric_std))  # fmt: skip
         return terms
 
-    def _surface_keyframe(self, start: NDArray[np.float64]) -> _WindowKeyframe | None:
-        """The window's oldest keyframe with a surface within ``surface_reach`` and ``surface_reach_deg`` of
-        ``start``, else the newest: aligned to the newest alone, the surface term starts again from that
-        keyframe's error at every keyframe, which in weak texture comes every few frames."""
+    def _surface_keyframe(self, start: NDArray[np.float64]) -> _WindowKeyframe:
+        """The (non-empty) window's oldest keyframe with a surface within ``surface_reach`` and
+        ``surface_reach_deg`` of ``start``, else the newest: aligned to the newest alone, the surface term starts
+        again from that keyframe's error at every keyframe, which in weak texture comes every few frames."""
         reach, reach_deg = self.config.surface_reach, self.config.surface_reach_deg
-        for keyframe in self.window if reach > 0 else ():
+        if reach <= 0:
+            return self.window[-1]
+        for keyframe in self.window:
             if keyframe.surface is None:
                 continue
             motion = invert(keyframe.pose) @ start
             if np.linalg.norm(motion[:3, 3]) <= reach and np.degrees(rotation_angle(motion)) <= reach_deg:
                 return keyframe
-        return self.window[-1] if self.window else None
+        return self.window[-1]
 
     def _triangulate(
         self, pose: NDArray[np.float64], frame: _Frame, unmeasured: NDArray[np.intp]
