@@ -895,7 +895,7 @@ renderer.domElement.addEventListener("pointerup", (e) => {
 // `fleetslam station --session DIR`: the run's maps and findings as they ended, and a time slider that replays each
 // robot's SLAM trajectory (marker and path up to the slider's time) and, when the run recorded its cameras, the
 // camera frame nearest that time (asked from the server).
-const session = { data: null, t: 0, timer: null, asked: 0 };
+const session = { data: null, t: 0, timer: null, asked: 0, pending: null };
 state.session = session;
 function onSession(msg) {
   session.data = msg;
@@ -927,10 +927,20 @@ function setSessionTime(t) {
   const meta = document.getElementById("camera-meta");
   if (!data.camera.includes(state.selected)) {
     meta.textContent = "no camera in this run's recording: the trajectories are replayed";
-  } else if (performance.now() - session.asked > 200) { // at most five frames a second while scrubbing
-    session.asked = performance.now();
-    send({ type: "session_frame", agent: state.selected, t });
+  } else {
+    askSessionFrame();
   }
+}
+// At most five frames a second while scrubbing, and always the frame of where the slider stopped: a move within
+// 200 ms of the last request is asked for when that interval ends (the newest time then, not each one on the way).
+function askSessionFrame() {
+  const wait = session.asked + 200 - performance.now();
+  if (wait > 0) {
+    if (session.pending === null) session.pending = setTimeout(() => { session.pending = null; askSessionFrame(); }, wait);
+    return;
+  }
+  session.asked = performance.now();
+  send({ type: "session_frame", agent: state.selected, t: session.t });
 }
 document.getElementById("session-time").oninput = (e) => setSessionTime(parseFloat(e.target.value));
 document.getElementById("session-play").onclick = () => {
