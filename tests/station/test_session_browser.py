@@ -89,8 +89,8 @@ def test_a_finished_run_is_reviewed_with_a_time_slider(browser_page: Any, tmp_pa
         # At the end of the run the marker stands where c3po ended; the slider moves it back to 4 s, scrubbed there
         # through 2 s in one go: the frames asked for are throttled, but the one where the slider stops is shown.
         assert np.allclose(page.evaluate("window.fleetslam.frameOf('c3po').marker"), drawn([0, 0, 2.0]), atol=1e-3)
-        page.evaluate("() => { const s = document.getElementById('session-time');"
-                      " for (const t of [2.0, 4.0]) { s.value = t; s.dispatchEvent(new Event('input')); } }")  # fmt: skip
+        page.evaluate("() => { const s = document.getElementById('session-time'); for (const t of [2.0, 4.0])"
+                      " { s.value = t; s.dispatchEvent(new Event('input')); } }")  # fmt: skip
         assert np.allclose(page.evaluate("window.fleetslam.frameOf('c3po').marker"), drawn([0, 0, 0.8]), atol=1e-3)
         # The recorded camera frame of 4 s (the 21st), red level 80.
         page.wait_for_function("window.fleetslam.lastFrameSeq === 21", timeout=10000)
