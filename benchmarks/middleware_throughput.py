@@ -9,7 +9,10 @@ Prints one JSON line. For each payload (1 MB sensor_msgs/Image, 64-byte std_msgs
   records receive − send (same machine, same clock), p50 and p99.
 Peers: ``fleetslam`` (callbacks on the node's executor, the default), ``fleetslam_inline`` (``inline=True``:
 callbacks on Zenoh's thread), raw ``zenoh`` (the same CDR bytes, an 8-byte attachment, one copy out of Zenoh)
-and rclpy. rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy),
+and rclpy. The fleetslam peers publish an image through a loan (``Publisher.loan``: its array written once into
+the publisher's payload, as raw Zenoh's payload is built once; each message's other fields written around it);
+``fleetslam_copy`` (1 MB and Kinect) publishes the message itself, its array copied into the payload each time.
+rclpy runs in its own virtual environment (created on first use under ~/.cache/fleetslam/bench-rclpy),
 because its pip wheels re-execute the interpreter at import. Targets, fleetslam (executor) against raw Zenoh in
 the same run: 1 MB throughput ≥ 0.8× and p50 latency ≤ 1.5×; 64 B throughput ≥ 0.5×; and ≥ 5× / ≥ 10× rclpy.
 
@@ -17,12 +20,12 @@ The comparison with raw Zenoh is made on medians of interleaved trials: a single
 other, lets a burst of other load or a change of CPU frequency during one peer's trial decide the ratio (the same
 code's 64 B ratio moved by 0.2 from run to run that way). Each payload runs ``--trials`` rounds (default 5); a
 round runs each fleetslam and raw Zenoh peer once (a fresh publisher process and subscriber per trial, a
-throughput trial then a latency trial), in the order fleetslam, fleetslam_inline, zenoh and reversed in every
-other round. A peer's ``msgs_per_s``, ``latency_p50_ms``, ``latency_p99_ms``, ``pub_cpu_us_per_msg`` and
-``sub_cpu_us_per_msg`` are the medians over its trials (each trial's figures are in its ``trials``;
-``latency_samples`` is the total); ``ratio_vs_zenoh`` and ``latency_p50_vs_zenoh`` are ratios of those medians,
-and ``targets_met`` judges the medians; ``ratio_vs_zenoh_pairs`` / ``latency_p50_vs_zenoh_pairs`` are the ratios
-within each round and ``…_range`` their [min, max], the spread. rclpy is measured once per payload (one
+throughput trial then a latency trial), in the order fleetslam, fleetslam_inline, (fleetslam_copy,) zenoh and
+reversed in every other round. A peer's ``msgs_per_s``, ``latency_p50_ms``, ``latency_p99_ms``,
+``pub_cpu_us_per_msg`` and ``sub_cpu_us_per_msg`` are the medians over its trials (each trial's figures are in its
+``trials``; ``latency_samples`` is the total); ``ratio_vs_zenoh`` and ``latency_p50_vs_zenoh`` are ratios of those
+medians, and ``targets_met`` judges the medians; ``ratio_vs_zenoh_pairs`` / ``latency_p50_vs_zenoh_pairs`` are the
+ratios within each round and ``…_range`` their [min, max], the spread. rclpy is measured once per payload (one
 throughput and one latency trial: its targets are far from the line). ``all_targets_met``: every payload's
 ``targets_met`` (the fleetslam executor peer). ``pub_threads_us_per_msg`` / ``sub_threads_us_per_msg``: each end's
 CPU µs per message (sent / delivered) by kind of thread (``executor``, ``receive``, Zenoh's ``rx``/``tx``/``net``,
@@ -79,6 +82,9 @@ KINECT = {"rgb": ("rgb8", 3, np.uint8), "depth": ("16UC1", 1, np.uint16)}
 """The Kinect pair: topic /bench/kinect/<name> → (encoding, channels, dtype), 640×480 at 30 Hz each."""
 KINECT_SIZE, KINECT_RATE = (640, 480), 30.0
 IMPLS = ("fleetslam", "fleetslam_inline", "zenoh")
+COPY_IMPL = "fleetslam_copy"
+"""With an image: a fleetslam peer (executor) that publishes the message itself, its array copied into the payload,
+beside the default peers that publish it through a loan."""
 RCLPY_VENV = Path.home() / ".cache" / "fleetslam" / "bench-rclpy"
 RCLPY_PACKAGES = ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-rmw-fastrtps-cpp"]
 
@@ -129,8 +135,24 @@ def topics_of(kind: str) -> list[str]:
     return [f"kinect/{name}" for name in KINECT] if kind == "kinect" else [kind]
 
 
-def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float) -> None:
-    """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop."""
+def loaned(publisher: Any, msg: Any) -> Any:
+    """The message through the publisher's loan when its type ends in a byte array (an Image), else itself."""
+    from fleetslam.msg.typesys import trailing_array
+
+    trailing = trailing_array(publisher.type_name)
+    if trailing is None:
+        return msg
+    array = getattr(msg, trailing.field)
+    message = publisher.loan(msg, array.size)
+    np.copyto(getattr(message, trailing.field), array)
+    return message
+
+
+def run_publisher(
+    impl: str, kind: str, endpoint: str, mode: str, duration: float, rate: float, copy_arrays: bool = False
+) -> None:
+    """Publish for ``duration`` s, then print one JSON line: messages sent, CPU s and wall s of the sending loop.
+    A fleetslam peer publishes an image through a loan (:meth:`Publisher.loan`) unless ``copy_arrays``."""
     from fleetslam.msg.typesys import serialize
 
     messages = [(f"/bench/{k}", *make_message(k)) for k in topics_of(kind)]
@@ -144,6 +166,8 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             qos = QoSProfile(history="keep_all") if mode == "throughput" else QoSProfile(depth=100)
             publishers = [(node.create_publisher(t, topic, qos), t, msg) for topic, t, msg in messages]
             wait_matched([publisher._publisher for publisher, _, _ in publishers])
+            if not copy_arrays:  # an image is written into the publisher's loan once, as raw Zenoh's payload is
+                publishers = [(p, t, loaned(p, msg)) for p, t, msg in publishers]
             threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
             deadline, next_time = wall0 + duration, wall0
             while time.monotonic() < deadline:
@@ -174,12 +198,12 @@ def run_publisher(impl: str, kind: str, endpoint: str, mode: str, duration: floa
             (session.declare_publisher(topic_key(0, topic, t), congestion_control=congestion), serialize(msg, t))
             for topic, t, msg in messages
         ]
-        wait_matched([publisher for publisher, _ in puts])
+        wait_matched([zenoh_publisher for zenoh_publisher, _ in puts])
         threads0, cpu0, wall0 = thread_cpu_s(), time.process_time(), time.monotonic()
         deadline, next_time = wall0 + duration, wall0
         while time.monotonic() < deadline:
-            for publisher, payload in puts:
-                publisher.put(payload, attachment=struct.pack("<q", time.time_ns()))
+            for zenoh_publisher, payload in puts:
+                zenoh_publisher.put(payload, attachment=struct.pack("<q", time.time_ns()))
                 sent += 1
             if period:
                 next_time += period
@@ -479,6 +503,15 @@ def measure_layers(kind: str, count: int) -> dict[str, float]:
                 rows[name] = min(rows.get(name, math.inf), _us_per_message(work, count))
         time.sleep(0.3)
         rows["pub_total"] = _us_per_message(publish, count)
+        loaned_msg = loaned(publisher, msg)
+        if loaned_msg is not msg:  # an image through the publisher's loan: no copy of its array before Zenoh's
+
+            def publish_loaned(n: int) -> None:
+                for _ in range(n):
+                    publisher.publish(loaned_msg)
+
+            time.sleep(0.3)
+            rows["pub_total_loaned"] = _us_per_message(publish_loaned, count)
         time.sleep(0.5)
         remote.undeclare()
 
@@ -678,7 +711,7 @@ def measure_interleaved(kind: str, impls: tuple[str, ...], trials: int, duration
         entry[impl]["trials"] = peer_trials
     for impl in impls:
         if impl.startswith("fleetslam") and "zenoh" in runs:
-            prefix = "" if impl == "fleetslam" else "inline_"
+            prefix = "" if impl == "fleetslam" else impl.removeprefix("fleetslam_") + "_"
             pairs = zip(runs[impl], runs["zenoh"], strict=True)
             throughput = [_ratio(ours["msgs_per_s"], zen["msgs_per_s"]) for ours, zen in pairs]
             entry[f"{prefix}ratio_vs_zenoh_pairs"] = throughput
@@ -757,7 +790,8 @@ def main() -> None:
     # fleetslam command gives its nodes: the same for raw Zenoh's peer as for fleetslam's.
     keep_freed_memory()
     if args.role == "pub":
-        run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate)
+        copy_arrays = args.impl == COPY_IMPL
+        run_publisher(args.impl, args.kind, args.endpoint, args.mode, args.duration, args.rate, copy_arrays)
         return
     if args.layers:
         wanted_layers = [k.strip() for k in args.payloads.split(",") if k.strip() in PAYLOADS]
@@ -778,7 +812,8 @@ def main() -> None:
     rclpy_python, rclpy_reason = (None, "skipped (--no-rclpy)") if args.no_rclpy else ensure_rclpy_venv()
     for kind in (k for k in PAYLOADS if k in wanted):
         rate = 50.0 if kind == "image_1mb" else 200.0
-        entry = measure_interleaved(kind, IMPLS, args.trials, args.duration, rate)
+        impls = IMPLS if kind == "string_64b" else (*IMPLS[:2], COPY_IMPL, *IMPLS[2:])
+        entry = measure_interleaved(kind, impls, args.trials, args.duration, rate)
         if rclpy_python is not None:
             print(f"[bench] {kind} rclpy ...", file=sys.stderr, flush=True)
             entry["rclpy"] = summarize(
@@ -789,16 +824,19 @@ def main() -> None:
             entry["rclpy"] = {"msgs_per_s": None, "reason": rclpy_reason}
         ours = entry["fleetslam"]["msgs_per_s"]
         entry["ratio_vs_zenoh"] = _ratio(ours, entry["zenoh"]["msgs_per_s"])  # of the medians
-        entry["inline_ratio_vs_zenoh"] = _ratio(entry["fleetslam_inline"]["msgs_per_s"], entry["zenoh"]["msgs_per_s"])
+        for impl in impls[1:-1]:  # the other fleetslam peers, noted beside the default
+            name = impl.removeprefix("fleetslam_")
+            entry[f"{name}_ratio_vs_zenoh"] = _ratio(entry[impl]["msgs_per_s"], entry["zenoh"]["msgs_per_s"])
         rclpy_rate = entry["rclpy"].get("msgs_per_s")
         entry["ratio_vs_rclpy"] = round(ours / rclpy_rate, 2) if rclpy_rate else None
         target_zenoh, target_rclpy = (0.8, 5.0) if kind == "image_1mb" else (0.5, 10.0)
         entry["targets"] = {"vs_zenoh": target_zenoh, "vs_rclpy": target_rclpy}
         entry["targets_met"] = check_targets(kind, entry)
-        entry["inline_targets_met"] = check_targets(kind, entry, "fleetslam_inline")
+        for impl in impls[1:-1]:
+            entry[f"{impl.removeprefix('fleetslam_')}_targets_met"] = check_targets(kind, entry, impl)
         results[kind] = entry
     if "kinect" in wanted:
-        results["kinect"] = measure_kinect(IMPLS, args.duration)
+        results["kinect"] = measure_kinect((*IMPLS[:2], COPY_IMPL, *IMPLS[2:]), args.duration)
     results["all_targets_met"] = all(all(results[k]["targets_met"].values()) for k in PAYLOADS if k in results)
     results["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
     print(json.dumps(results))

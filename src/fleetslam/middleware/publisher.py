@@ -15,6 +15,7 @@ from fleetslam.errors import MiddlewareError
 from fleetslam.middleware.entity import Entity
 from fleetslam.middleware.wire import EntityKind, QoSProfile, encode_attachment, topic_key
 from fleetslam.msg import typesys
+from fleetslam.msg.loan import Loan, fill_loan, loan_message
 
 if TYPE_CHECKING:
     from fleetslam.middleware.node import Node
@@ -65,6 +66,12 @@ class Publisher(Entity):
         self._scratch = bytearray()
         """The serialized message for Zenoh when it ends in a large array, reused (see :meth:`publish`)."""
         self._scratch_lock = threading.Lock() if typesys.ends_in_byte_array(type_name) else None
+        self._loans: dict[int, Loan] = {}
+        """Loans not published yet, and the last one published (it may be published again), by ``id`` of array."""
+        self._loan_lock = threading.Lock()
+        self._trailing = typesys.trailing_array(type_name)
+        self._returned: Loan | None = None
+        """The loan published last: the next :meth:`loan` of its size takes its payload."""
         self._declare_token()
 
     @property
@@ -82,6 +89,8 @@ class Publisher(Entity):
         (:func:`~fleetslam.msg.typesys.serialize_payload`). Another thread publishing meanwhile gets a new buffer.
         """
         if not isinstance(msg, _BUFFERS):  # a message: one check (a union built per call and two checks: 0.1 µs)
+            if self._loans and self._publish_loaned(msg, source_timestamp_ns):
+                return
             if self._scratch_lock is not None and self._scratch_lock.acquire(blocking=False):
                 try:
                     payload = _serialize_payload(msg, self.type_name, self._scratch)
@@ -94,6 +103,46 @@ class Publisher(Entity):
             self.publish_raw(bytes(msg), source_timestamp_ns=source_timestamp_ns)
         else:
             self.publish_raw(msg, source_timestamp_ns=source_timestamp_ns)
+
+    MAX_LOANS = 8
+    """Loans a publisher keeps track of; a message loaned before the last eight is published as any other."""
+
+    def loan(self, template: object, count: int) -> Any:
+        """A copy of ``template`` whose trailing byte array (an Image's or a PointCloud2's ``data``) is a writable
+        array of ``count`` elements that already lies in the payload this publisher hands to Zenoh: fill it in
+        place (capture into it, ``np.copyto``), set the other fields, and :meth:`publish` copies none of its bytes
+        before Zenoh's own copy (a 1 MB frame saves one copy, ~40 µs and a megabyte of cache).
+
+        The message may be published any number of times, its fields changed in between; a change that moves the
+        array (a longer ``frame_id`` or ``encoding``) or replaces it is published the usual way. Once a loaned
+        message is published, its payload is the publisher's again: the next loan of the same size reuses it
+        without clearing it (the new array holds the last message's bytes until filled; the old message's array
+        is the new one's); copy what must outlive the next loan. A first loan's array is zeroed.
+
+        Raises MessageError for a type that does not end in a byte array (``std_msgs/msg/String``) or a template
+        of another type."""
+        with self._loan_lock:
+            returned, self._returned = self._returned, None
+            if returned is not None:
+                self._loans.pop(id(returned.array), None)
+        loan = loan_message(template, self.type_name, count, returned.payload if returned is not None else None)
+        with self._loan_lock:
+            while len(self._loans) >= self.MAX_LOANS:
+                del self._loans[next(iter(self._loans))]
+            self._loans[id(loan.array)] = loan
+        return loan.message
+
+    def _publish_loaned(self, msg: object, source_timestamp_ns: int | None) -> bool:
+        """Publish a loaned message from its own payload; False for any other message (or a loan it outgrew)."""
+        trailing = self._trailing
+        array = getattr(msg, trailing.field, None) if trailing is not None else None
+        loan = self._loans.get(id(array))
+        if loan is None or loan.array is not array or not fill_loan(loan, msg, self.type_name):
+            return False
+        self.publish_raw(loan.payload, source_timestamp_ns=source_timestamp_ns)
+        with self._loan_lock:
+            self._returned = loan
+        return True
 
     @property
     def matched_subscriptions(self) -> int:

@@ -19,7 +19,7 @@ import threading
 from collections.abc import Mapping
 from dataclasses import fields, is_dataclass
 from importlib import resources
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from rosbags.interfaces import Nodetype
@@ -33,7 +33,9 @@ __all__ = [
     "CDR_HEADER",
     "STANDARD_MESSAGES",
     "STANDARD_SERVICES",
+    "TrailingArray",
     "all_type_names",
+    "cdr_around_array",
     "dds_type_name",
     "deserialize",
     "duration_from_ns",
@@ -51,6 +53,7 @@ __all__ = [
     "serialize_payload",
     "service_types",
     "stamp_from_ns",
+    "trailing_array",
     "type_description",
     "type_hash",
 ]
@@ -299,7 +302,7 @@ def _serialize_spliced(
     array's length written in, and the array's bytes joined in where it stood. None (the caller serializes as usual)
     for anything but the type's own class holding a contiguous one-dimensional array of the field's dtype of
     :data:`SPLICE_MIN_BYTES` or more."""
-    name, tail, dtype, empty, cls = plan
+    name, tail, dtype, _, cls = plan
     if type(msg) is not cls:
         return None
     state = getattr(msg, "__dict__", None)  # rosbags' classes are plain dataclasses; another class goes the usual way
@@ -314,12 +317,7 @@ def _serialize_spliced(
         or not data.flags.c_contiguous
     ):
         return None
-    shell = object.__new__(cls)
-    shell.__dict__.update(state)
-    shell.__dict__[name] = empty
-    buffer: Any = _rosbags_cdr(store, shell, type_name, msg).obj  # the bytearray rosbags filled
-    cut = len(buffer) - tail
-    _pack_length(buffer, cut - 4, data.size)
+    buffer, cut = _cdr_without_array(msg, type_name, store, plan, data.size)
     array: Any = data  # NumPy's stubs do not make an array a Buffer for bytes.join
     if scratch is not None:
         size = len(buffer) + data.nbytes
@@ -335,6 +333,52 @@ def _serialize_spliced(
         return b"".join((buffer, array))
     view = memoryview(buffer)
     return b"".join((view[:cut], array, view[cut:]))
+
+
+def _cdr_without_array(
+    msg: Any, type_name: str, store: Typestore, plan: tuple[str, int, Any, Any, type], count: int
+) -> tuple[Any, int]:
+    """The CDR of ``msg`` (of the plan's class) with its trailing byte array left out, the array's length written as
+    ``count``, and where the array's bytes go (``cut``: the fields after them are the buffer's last ``tail`` bytes)."""
+    name, tail, _, empty, cls = plan
+    shell: Any = object.__new__(cls)
+    shell.__dict__.update(msg.__dict__)
+    shell.__dict__[name] = empty
+    buffer: Any = _rosbags_cdr(store, shell, type_name, msg).obj  # the bytearray rosbags filled
+    cut = len(buffer) - tail
+    _pack_length(buffer, cut - 4, count)
+    return buffer, cut
+
+
+class TrailingArray(NamedTuple):
+    """Where a message type's trailing byte array lies (see :func:`trailing_array`)."""
+
+    field: str
+    """The array's field (an Image's ``data``)."""
+    dtype: np.dtype
+    """Its element type (one byte: ``uint8`` or ``int8``)."""
+
+
+def trailing_array(type_name: str) -> TrailingArray | None:
+    """The unbounded byte array that ends a message type (only one-byte fields after it), or None for a type
+    without one: the array whose bytes :func:`serialize_payload` joins on in one copy and a publisher can lend
+    (:mod:`fleetslam.msg.loan`)."""
+    plan = _cached_splice_plan(type_name, get_typestore())
+    return None if plan is None else TrailingArray(plan[0], plan[2])
+
+
+def cdr_around_array(msg: object, type_name: str, count: int) -> tuple[Any, int]:
+    """The CDR of ``msg`` without the bytes of its trailing byte array (a ``bytearray``, the array's length written
+    as ``count``) and the offset where those bytes go, i.e. the CDR of the message is ``buffer[:cut] + array bytes +
+    buffer[cut:]``. Raises MessageError for a type without a trailing array (:func:`trailing_array`) or a message
+    of another class, or fields that cannot be serialized."""
+    store = get_typestore()
+    plan = _cached_splice_plan(type_name, store)
+    if plan is None:
+        raise MessageError(f"type {type_name} does not end in a byte array")
+    if type(msg) is not plan[4] or getattr(msg, "__dict__", None) is None:
+        raise MessageError(f"cannot serialize {type(msg).__name__} as {type_name}: not a {type_name} message")
+    return _cdr_without_array(msg, type_name, store, plan, count)
 
 
 def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
