@@ -249,3 +249,53 @@ def test_strings_arrive_decoded_with_their_info(make_context: Callable[..., Cont
     assert [i.size for i in infos] == [len(serialize(get_type(STRING)(data=t), STRING)) for t in TEXTS]
     assert isinstance(infos[0], MessageInfo) and infos[0]._fields[0] == "source_timestamp_ns"
     assert sub.statistics.total_delivered == len(TEXTS) and sub.statistics.total_dropped == 0
+
+
+IMAGE = "sensor_msgs/msg/Image"
+
+
+def decode_image(data: bytes | bytearray) -> tuple[str, object]:
+    """What deserialize makes of an Image's CDR: ("ok", its fields with the data as bytes) or ("error", message)."""
+    try:
+        msg = deserialize(data, IMAGE)
+    except MessageError as err:
+        return "error", str(err)
+    fields = message_to_dict(msg)
+    return "ok", ({**fields, "data": bytes(np.asarray(msg.data))}, type(msg).__name__, msg.data.dtype)
+
+
+@pytest.mark.parametrize("frame", ["", "c", "ca", "cam", "came", "camera_optical_frame", "é"])
+@pytest.mark.parametrize("encoding", ["", "8", "rgb8", "mono16", "bayer_rggb8"])
+def test_image_fast_path_reads_what_rosbags_does(frame: str, encoding: str) -> None:
+    """Every alignment of the fields after the two strings, data lengths 0–9 and 64 KiB, padding 0–5 bytes: the
+    fast path (bytes) gives what the general decoder (a bytearray) gives, message or error; its data is a read-only
+    view on the payload, no copy."""
+    store = get_typestore()
+    for size in (*range(10), 1 << 16):
+        msg = message_from_dict(IMAGE, {"header": {"stamp": {"sec": -5, "nanosec": 999_999_999}, "frame_id": frame},
+                                        "height": 7, "width": 2**32 - 1, "encoding": encoding, "is_bigendian": 1,
+                                        "step": 3, "data": np.arange(size, dtype=np.uint8)})  # fmt: skip
+        reference = bytes(store.serialize_cdr(msg, IMAGE))
+        decoded = deserialize(reference, IMAGE)
+        assert decoded.data.base is reference and not decoded.data.flags.writeable
+        assert message_to_dict(decoded) == message_to_dict(store.deserialize_cdr(reference, IMAGE))
+        for padding in range(6):
+            padded = reference + b"\0" * padding
+            assert decode_image(padded) == decode_image(bytearray(padded))
+
+
+def test_image_fast_path_rejects_what_the_general_decoder_rejects() -> None:
+    """Truncated, overlong, big-endian, unterminated and randomly damaged Images: the same message or the same
+    error either way."""
+    msg = message_from_dict(IMAGE, {"header": {"frame_id": "cam"}, "encoding": "rgb8", "data": np.ones(12, np.uint8)})
+    reference = serialize(msg, IMAGE)
+    cases = [reference[:cut] for cut in range(len(reference))]
+    cases += [b"\x00\x00" + reference[2:], reference[:12] + b"\x07" + reference[13:]]  # big-endian; no terminator
+    rng = random.Random(7)
+    for _ in range(2000):
+        damaged = bytearray(reference)
+        for _ in range(rng.randint(1, 3)):
+            damaged[rng.randrange(len(damaged))] = rng.randrange(256)
+        cases.append(bytes(damaged))
+    for case in cases:
+        assert decode_image(case) == decode_image(bytearray(case)), case.hex()

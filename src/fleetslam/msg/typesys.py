@@ -391,10 +391,15 @@ def deserialize(data: bytes | bytearray | memoryview, type_name: str) -> Any:
     which NumPy and OpenCV handle. A ``bytearray`` or ``memoryview`` is copied first (it may be a borrowed or
     mutable buffer), so the message never aliases memory its caller may change.
     """
-    if type(data) is bytes and type_name == _STRING:
-        message = _string_le(data)
-        if message is not None:
-            return message
+    if type(data) is bytes:
+        if type_name == _STRING:
+            message = _string_le(data)
+            if message is not None:
+                return message
+        elif type_name == _IMAGE:
+            message = _image_le(data)
+            if message is not None:
+                return message
     decoder = _decoders.get(type_name) or _decoder(type_name)
     if type(data) is bytes:
         raw = data
@@ -441,6 +446,55 @@ def _string_le(raw: bytes) -> Any:
     except UnicodeDecodeError:
         return None
     return (_decoders.get(_STRING) or _decoder(_STRING))[2](text)  # the class, as the general decoder's
+
+
+_IMAGE = "sensor_msgs/msg/Image"
+_IMAGE_STAMP = struct.Struct("<iII").unpack_from
+"""An Image's stamp (sec, nanosec) and its frame name's length, right after the CDR header."""
+_IMAGE_SIZE = struct.Struct("<III").unpack_from
+"""height, width and the encoding's length."""
+_IMAGE_DATA = struct.Struct("<II").unpack_from
+"""step and the data's length."""
+_image_classes: tuple[Any, Any, Any] | None = None
+
+
+def _image_le(raw: bytes) -> Any:
+    """sensor_msgs/msg/Image from little-endian CDR as rosbags decodes it, its ``data`` a view on ``raw``, or None
+    for anything else (big-endian, malformed, a string without its terminator), which the general decoder then
+    decodes or rejects with its own error. The camera's message, decoded first thing after a megabyte's copy on a
+    thread that has just woken: there, rosbags' general decoder took 56–64 µs of CPU and this one 35–38 (measured
+    in a live subscriber; 10–15 and 3–5 µs back to back)."""
+    global _image_classes
+    try:
+        if raw[0] != 0 or raw[1] != 1:
+            return None
+        sec, nanosec, frame_length = _IMAGE_STAMP(raw, 4)
+        start = 16
+        end = start + frame_length
+        if frame_length < 1 or raw[end - 1] != 0:
+            return None
+        frame_id = raw[start : end - 1].decode()
+        pos = end + (-(end - 4) & 3)  # CDR aligns to the body, which starts after the 4-byte header
+        height, width, encoding_length = _IMAGE_SIZE(raw, pos)
+        start = pos + 12
+        end = start + encoding_length
+        if encoding_length < 1 or raw[end - 1] != 0:
+            return None
+        encoding = raw[start : end - 1].decode()
+        is_bigendian = raw[end]
+        pos = end + 1
+        pos += -(pos - 4) & 3
+        step, size = _IMAGE_DATA(raw, pos)
+        pos += 8
+        if pos + size > len(raw) or pos + size + 3 < len(raw):  # as rosbags: at most 3 bytes of padding
+            return None
+        data = np.frombuffer(raw, np.uint8, size, pos)
+    except (IndexError, struct.error, UnicodeDecodeError):
+        return None
+    if _image_classes is None:
+        _image_classes = (get_type("builtin_interfaces/msg/Time"), get_type("std_msgs/msg/Header"), get_type(_IMAGE))
+    time_cls, header_cls, image_cls = _image_classes
+    return image_cls(header_cls(time_cls(sec, nanosec), frame_id), height, width, encoding, is_bigendian, step, data)
 
 
 _decoders: dict[str, tuple[Any, Any, Any, Typestore]] = {}
