@@ -335,11 +335,50 @@ def _serialize_spliced(
     return b"".join((view[:cut], array, view[cut:]))
 
 
+_IMAGE_PREFIX_HEAD = struct.Struct("<4siII")
+"""The CDR header, the stamp (sec, nanosec) and the frame name's length."""
+_IMAGE_PREFIX_SIZE = struct.Struct("<III")
+_IMAGE_PREFIX_TAIL = struct.Struct("<II")
+
+
+def _image_without_data(msg: Any) -> bytearray | None:
+    """The CDR of a sensor_msgs/msg/Image up to its data (the data's length written as 0), as rosbags writes it, or
+    None for anything rosbags might write otherwise or reject (a field of another type, a value out of range),
+    which then goes to rosbags."""
+    try:
+        header = msg.header
+        stamp = header.stamp
+        frame_id, encoding = header.frame_id, msg.encoding
+        if type(frame_id) is not str or type(encoding) is not str:
+            return None
+        frame = frame_id.encode()
+        coding = encoding.encode()
+        out = bytearray(_IMAGE_PREFIX_HEAD.pack(CDR_HEADER, stamp.sec, stamp.nanosec, len(frame) + 1))
+        out += frame
+        out.append(0)
+        out += bytes(-(len(out) - 4) & 3)
+        out += _IMAGE_PREFIX_SIZE.pack(msg.height, msg.width, len(coding) + 1)
+        out += coding
+        out.append(0)
+        out.append(msg.is_bigendian)
+        out += bytes(-(len(out) - 4) & 3)
+        out += _IMAGE_PREFIX_TAIL.pack(msg.step, 0)
+    except (AttributeError, TypeError, ValueError, struct.error):
+        return None
+    return out
+
+
 def _cdr_without_array(
     msg: Any, type_name: str, store: Typestore, plan: tuple[str, int, Any, Any, type], count: int
 ) -> tuple[Any, int]:
     """The CDR of ``msg`` (of the plan's class) with its trailing byte array left out, the array's length written as
-    ``count``, and where the array's bytes go (``cut``: the fields after them are the buffer's last ``tail`` bytes)."""
+    ``count``, and where the array's bytes go (``cut``: the fields after them are the buffer's last ``tail`` bytes).
+    An Image's is written by :func:`_image_without_data` (a camera's every frame: 3–4× less than rosbags')."""
+    if type_name == _IMAGE:
+        written = _image_without_data(msg)
+        if written is not None:
+            _pack_length(written, len(written) - 4, count)
+            return written, len(written)
     name, tail, _, empty, cls = plan
     shell: Any = object.__new__(cls)
     shell.__dict__.update(msg.__dict__)
