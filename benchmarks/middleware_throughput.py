@@ -85,6 +85,8 @@ IMPLS = ("fleetslam", "fleetslam_inline", "zenoh")
 COPY_IMPL = "fleetslam_copy"
 """With an image: a fleetslam peer (executor) that publishes the message itself, its array copied into the payload,
 beside the default peers that publish it through a loan."""
+IMAGE_IMPLS = (*IMPLS[:2], COPY_IMPL, *IMPLS[2:])
+"""The peers of the image payloads (1 MB, Kinect): the copying peer beside the others, raw Zenoh last."""
 RCLPY_VENV = Path.home() / ".cache" / "fleetslam" / "bench-rclpy"
 RCLPY_PACKAGES = ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-rmw-fastrtps-cpp"]
 
@@ -812,7 +814,7 @@ def main() -> None:
     rclpy_python, rclpy_reason = (None, "skipped (--no-rclpy)") if args.no_rclpy else ensure_rclpy_venv()
     for kind in (k for k in PAYLOADS if k in wanted):
         rate = 50.0 if kind == "image_1mb" else 200.0
-        impls = IMPLS if kind == "string_64b" else (*IMPLS[:2], COPY_IMPL, *IMPLS[2:])
+        impls = IMPLS if kind == "string_64b" else IMAGE_IMPLS
         entry = measure_interleaved(kind, impls, args.trials, args.duration, rate)
         if rclpy_python is not None:
             print(f"[bench] {kind} rclpy ...", file=sys.stderr, flush=True)
@@ -836,7 +838,7 @@ def main() -> None:
             entry[f"{impl.removeprefix('fleetslam_')}_targets_met"] = check_targets(kind, entry, impl)
         results[kind] = entry
     if "kinect" in wanted:
-        results["kinect"] = measure_kinect((*IMPLS[:2], COPY_IMPL, *IMPLS[2:]), args.duration)
+        results["kinect"] = measure_kinect(IMAGE_IMPLS, args.duration)
     results["all_targets_met"] = all(all(results[k]["targets_met"].values()) for k in PAYLOADS if k in results)
     results["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
     print(json.dumps(results))

@@ -65,11 +65,11 @@ class Publisher(Entity):
         self._put = self._publisher.put
         self._scratch = bytearray()
         """The serialized message for Zenoh when it ends in a large array, reused (see :meth:`publish`)."""
-        self._scratch_lock = threading.Lock() if typesys.ends_in_byte_array(type_name) else None
+        self._trailing = typesys.trailing_array(type_name)
+        self._scratch_lock = threading.Lock() if self._trailing is not None else None
         self._loans: dict[int, Loan] = {}
         """Loans not published yet, and the last one published (it may be published again), by ``id`` of array."""
         self._loan_lock = threading.Lock()
-        self._trailing = typesys.trailing_array(type_name)
         self._returned: Loan | None = None
         """The loan published last: the next :meth:`loan` of its size takes its payload."""
         self._declare_token()

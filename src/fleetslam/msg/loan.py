@@ -26,8 +26,18 @@ class Loan(NamedTuple):
     """The message's whole CDR payload (with its 4-byte header), as handed to Zenoh."""
     array: np.ndarray
     """The trailing array: a writable view on :attr:`payload`."""
+    field: str
+    """The message's field that holds :attr:`array`."""
     cut: int
     """Where the array's bytes start in :attr:`payload`."""
+
+
+def _write_around(payload: bytearray, around: Any, cut: int) -> None:
+    """Write a message's CDR without its array's bytes (``around``, see :func:`typesys.cdr_around_array`) into
+    ``payload`` around the array: what precedes it at the start, what follows it at the end."""
+    with memoryview(payload) as out, memoryview(around) as fields:
+        out[:cut] = fields[:cut]
+        out[len(out) - (len(around) - cut) :] = fields[cut:]
 
 
 def loan_message(template: object, type_name: str, count: int, payload: bytearray | None = None) -> Loan:
@@ -48,14 +58,12 @@ def loan_message(template: object, type_name: str, count: int, payload: bytearra
     size = len(around) + count * trailing.dtype.itemsize
     if payload is None or len(payload) != size:
         payload = bytearray(size)
-    with memoryview(payload) as out, memoryview(around) as fields:
-        out[:cut] = fields[:cut]
-        out[size - (len(around) - cut) :] = fields[cut:]
+    _write_around(payload, around, cut)
     array = np.frombuffer(payload, trailing.dtype, count, cut)
     message = object.__new__(type(template))
     message.__dict__.update(template.__dict__)
     message.__dict__[trailing.field] = array
-    return Loan(message, payload, array, cut)
+    return Loan(message, payload, array, trailing.field, cut)
 
 
 def fill_loan(loan: Loan, message: object, type_name: str) -> bool:
@@ -63,14 +71,10 @@ def fill_loan(loan: Loan, message: object, type_name: str) -> bool:
     False when the message no longer fits the loan and must be serialized as usual: its trailing array is not the
     loaned one (replaced), or the fields before it changed their CDR length (a longer ``frame_id`` or
     ``encoding``). Raises MessageError for fields that cannot be serialized."""
-    trailing = typesys.trailing_array(type_name)
-    if trailing is None or getattr(message, trailing.field, None) is not loan.array:
+    if getattr(message, loan.field, None) is not loan.array:
         return False
     around, cut = typesys.cdr_around_array(message, type_name, loan.array.size)
-    tail = len(around) - cut
-    if cut != loan.cut or cut + loan.array.nbytes + tail != len(loan.payload):
+    if cut != loan.cut or len(around) + loan.array.nbytes != len(loan.payload):
         return False
-    with memoryview(loan.payload) as out, memoryview(around) as fields:
-        out[:cut] = fields[:cut]
-        out[len(out) - tail :] = fields[cut:]
+    _write_around(loan.payload, around, cut)
     return True

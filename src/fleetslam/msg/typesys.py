@@ -335,6 +335,7 @@ def _serialize_spliced(
     return b"".join((view[:cut], array, view[cut:]))
 
 
+_IMAGE = "sensor_msgs/msg/Image"
 _IMAGE_PREFIX_HEAD = struct.Struct("<4siII")
 """The CDR header, the stamp (sec, nanosec) and the frame name's length."""
 _IMAGE_PREFIX_SIZE = struct.Struct("<III")
@@ -487,7 +488,6 @@ def _string_le(raw: bytes) -> Any:
     return (_decoders.get(_STRING) or _decoder(_STRING))[2](text)  # the class, as the general decoder's
 
 
-_IMAGE = "sensor_msgs/msg/Image"
 _IMAGE_STAMP = struct.Struct("<iII").unpack_from
 """An Image's stamp (sec, nanosec) and its frame name's length, right after the CDR header."""
 _IMAGE_SIZE = struct.Struct("<III").unpack_from
