@@ -10,7 +10,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from fleetslam.middleware import Context, Node, Publisher, QoSProfile, Subscription
+from fleetslam.middleware.subscription import LARGE_SAMPLE_BYTES
 from fleetslam.msg.typesys import get_type
 
 from ..support import wait_until
@@ -297,3 +300,55 @@ def test_a_flood_does_not_starve_the_nodes_timer_or_its_other_subscriptions(
     pings_during = [t for t in pings if flooding[0] < t < flooding[1]]
     assert len(ticks_during) >= 20, (len(ticks_during), received)
     assert len(pings_during) >= 8, (len(pings_during), received)
+
+
+def _image(index: int, size: int) -> Any:
+    from fleetslam.msg.typesys import header
+
+    data = np.full(size, index, np.uint8)  # index < 256
+    return get_type("sensor_msgs/msg/Image")(
+        header=header("camera", 0), height=1, width=size, encoding="mono8", is_bigendian=0, step=size, data=data
+    )
+
+
+def test_large_samples_keep_keep_last_and_the_statistics_one_by_one(make_context: Callable[..., Context]) -> None:
+    # Samples from LARGE_SAMPLE_BYTES on are taken from the ring one at a time (never pulled in a batch): a slow
+    # callback still gets the newest, every sample is counted as it arrives, and a quick one gets each in order.
+    size = LARGE_SAMPLE_BYTES + 1000
+    talker = Node("camera", context=make_context(), statistics_period_s=0)
+    node = Node("viewer", context=make_context(), statistics_period_s=0)
+    release = threading.Event()
+    slow: list[int] = []
+
+    def on_slow(msg: Any) -> None:
+        assert msg.data.size == size and msg.header.frame_id == "camera"
+        slow.append(int(msg.data[-1]))
+        release.wait(10.0)
+
+    sub = node.create_subscription("sensor_msgs/msg/Image", "/slow", on_slow, QoSProfile(depth=3))
+    pub = talker.create_publisher("sensor_msgs/msg/Image", "/slow")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    time.sleep(0.1)
+    pub.publish(_image(0, size))
+    assert wait_until(lambda: slow == [0])
+    for i in range(1, 21):
+        pub.publish(_image(i, size))
+    assert wait_until(lambda: sub.statistics.total_delivered == 21)
+    release.set()
+    assert wait_until(lambda: slow == [0, 18, 19, 20])
+    assert sub.queue_overflows == 17
+    assert sub.statistics.total_dropped == 0
+
+    quick: list[int] = []
+    burst = node.create_subscription(
+        "sensor_msgs/msg/Image", "/burst", lambda msg: quick.append(int(msg.data[-1])), QoSProfile(depth=100)
+    )
+    pub = talker.create_publisher("sensor_msgs/msg/Image", "/burst")
+    assert wait_until(lambda: pub.matched_subscriptions == 1)
+    time.sleep(0.1)
+    for i in range(60):
+        pub.publish(_image(i, size))
+    assert wait_until(lambda: len(quick) == 60)
+    assert quick == list(range(60))
+    assert burst.statistics.total_delivered == 60
+    assert burst._pulled == 0  # no sample was taken from the ring in a batch
