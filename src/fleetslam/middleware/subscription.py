@@ -251,11 +251,10 @@ class Subscription(Entity):
         """The executor's turns when it last stalled with the ring (it gets the ring again once it moves on)."""
         try:
             while not self._destroyed:
-                take(recv())
                 # A large sample is delivered at once, alone, while its payload is fresh in the cache: taking the
                 # samples waiting behind it first (the flood path below) leaves each payload to be copied out cold
                 # (1 MB images, publisher flooding: 0.79 -> 0.89 of raw Zenoh's throughput, measured interleaved).
-                sample = None if pending and pending[-1][1].size >= LARGE_SAMPLE_BYTES else try_recv()
+                sample = None if take(recv()) >= LARGE_SAMPLE_BYTES else try_recv()
                 if sample is not None:
                     take(sample)
                     if self._turns != stalled_at:
@@ -299,14 +298,20 @@ class Subscription(Entity):
                     return True
         return False
 
-    def _take(self, sample: zenoh.Sample) -> None:
-        """Check, count and queue a sample (batched subscriptions: posting is the caller's)."""
+    def _take(self, sample: zenoh.Sample) -> int:
+        """Check, count and queue a sample (batched subscriptions: posting is the caller's); its payload's size, 0
+        for a sample dropped. The size is the sample's own: the queue may already be drained by the executor."""
         if self._destroyed:
-            return
+            return 0
         try:
-            self._receive(sample)
+            checked = self._check(sample)
+            if checked is None:
+                return 0
+            self._queue(*checked)
+            return checked[1].size
         except Exception as err:  # whatever arrives, nothing may escape from here
             self._internal_error(err)
+            return 0
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh's callback (KEEP_ALL, transient local, inline): whatever arrives, nothing may escape from here.
@@ -343,6 +348,11 @@ class Subscription(Entity):
         if self.inline:
             self._deliver(zpayload.to_bytes(), info)  # the one copy out of Zenoh; the message's arrays view it
             return False
+        return self._queue(zpayload, info)
+
+    def _queue(self, zpayload: zenoh.ZBytes, info: MessageInfo) -> bool:
+        """Queue a checked sample for delivery; True unless KEEP_LAST dropped one for it outside a batched
+        subscription (a hand-off is then due)."""
         # A large payload leaves Zenoh where it is decoded (the executor, or this thread delivering it itself), where
         # its copy is also freed: a buffer made on one thread and freed on another made glibc return and fault in
         # its pages for every sample (1 MB: 2x the CPU of the receiving end). Zenoh reassembled it into a buffer of
