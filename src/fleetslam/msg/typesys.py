@@ -339,7 +339,9 @@ _IMAGE = "sensor_msgs/msg/Image"
 _IMAGE_PREFIX_HEAD = struct.Struct("<4siII")
 """The CDR header, the stamp (sec, nanosec) and the frame name's length."""
 _IMAGE_PREFIX_SIZE = struct.Struct("<III")
+"""height, width and the encoding's length."""
 _IMAGE_PREFIX_TAIL = struct.Struct("<II")
+"""step and the data's length."""
 
 
 def _image_without_data(msg: Any) -> bytearray | None:
@@ -489,11 +491,10 @@ def _string_le(raw: bytes) -> Any:
 
 
 _IMAGE_STAMP = struct.Struct("<iII").unpack_from
-"""An Image's stamp (sec, nanosec) and its frame name's length, right after the CDR header."""
-_IMAGE_SIZE = struct.Struct("<III").unpack_from
-"""height, width and the encoding's length."""
-_IMAGE_DATA = struct.Struct("<II").unpack_from
-"""step and the data's length."""
+"""An Image's stamp (sec, nanosec) and its frame name's length, right after the CDR header (as
+_IMAGE_PREFIX_HEAD writes them)."""
+_IMAGE_SIZE = _IMAGE_PREFIX_SIZE.unpack_from
+_IMAGE_DATA = _IMAGE_PREFIX_TAIL.unpack_from
 _image_classes: tuple[Any, Any, Any] | None = None
 
 
